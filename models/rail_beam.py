@@ -1,0 +1,131 @@
+"""Tongue rails as a lumped finite-element beam (paper, section "Rail switch model").
+
+The two tongue rails, tied by stretcher bars, move as one Euler-Bernoulli beam
+clamped at the heel and pushed at the toe (the drive point). It is discretised
+as a chain of lumped masses joined by rotational bending springs and dampers
+(the paper's "chain of alternating bodies and joints"); every node sits on a
+slide chair with Coulomb friction, and the toe region closes against
+the stock rail at each end of travel. Node coordinate `u` is the lateral
+displacement from the unstressed shape; the travel coordinate of the drive
+point is `neutral_m + u[-1]`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import casadi as ca
+import numpy as np
+import scipy.sparse as sp
+
+from models.adjuster import unilateral_contact
+
+GRAVITY_M_S2 = 9.81
+
+
+@dataclass(frozen=True)
+class RailParams:
+    """Two 60 kg/m rails (UIC60: E = 210 GPa, lateral I = 5.12e-6 m^4 each)."""
+
+    nodes: int = 128
+    length_m: float = 10.0
+    mass_per_length_kg_m: float = 2 * 60.2
+    bending_stiffness_n_m2: float = 2 * 210e9 * 5.12e-6
+    structural_damping_s: float = 1.0e-3  # stiffness-proportional (Rayleigh) damping
+    drive_mass_kg: float = 30.0  # adjuster, stretcher bar and locking parts at the toe
+    # Greased slide chairs: their friction at the drive point exceeds the beam's spring
+    # force at either end of travel, so the rails stay put until a bolt pushes them.
+    chair_friction_coefficient: float = 0.2
+    chair_friction_speed_m_s: float = 0.001
+    chair_viscous_n_s_m: float = 2.0
+    neutral_m: float = 1.10  # unstressed position of the drive point
+    left_stock_m: float = 1.00
+    right_stock_m: float = 1.20
+    contact_region_fraction: float = 0.35  # toe share of the beam that meets the stock rail
+    stock_stiffness_n_m: float = 1.0e6  # per contacting node
+    stock_damping_s_m: float = 5.0
+
+
+class RailBeam:
+    """Mass, stiffness and contact geometry of the discretised beam (numbers only)."""
+
+    def __init__(self, params: RailParams = RailParams()):
+        self.params = params
+        n = params.nodes
+        self.spacing_m = params.length_m / n
+        self.arc_m = self.spacing_m * np.arange(1, n + 1)
+        self.masses_kg = np.full(n, params.mass_per_length_kg_m * self.spacing_m)
+        self.masses_kg[-1] = 0.5 * params.mass_per_length_kg_m * self.spacing_m + params.drive_mass_kg
+        self.contact_nodes = np.flatnonzero(self.arc_m >= (1.0 - params.contact_region_fraction) * params.length_m)
+
+    @cached_property
+    def stiffness(self) -> sp.csc_matrix:
+        """K = EI * ds * D^T D, D the curvature at every joint (heel clamped, toe free)."""
+        n, ds = self.params.nodes, self.spacing_m
+        rows, cols, vals = [], [], []
+        for joint in range(n):  # joint j sits at node j; node 0 is the clamped heel
+            for node, weight in ((joint - 1, 1.0), (joint, -2.0), (joint + 1, 1.0)):
+                if 1 <= node <= n:
+                    rows.append(joint)
+                    cols.append(node - 1)
+                    vals.append(weight / ds**2)
+        curvature = sp.csr_matrix((vals, (rows, cols)), shape=(n, n))
+        stiffness = sp.csc_matrix(self.params.bending_stiffness_n_m2 * ds * (curvature.T @ curvature))
+        stiffness.sort_indices()
+        return stiffness
+
+    @cached_property
+    def stiffness_dm(self) -> ca.DM:
+        """The stiffness matrix as a sparse CasADi constant."""
+        k = self.stiffness
+        return ca.DM(ca.Sparsity(k.shape[0], k.shape[1], k.indptr.tolist(), k.indices.tolist()), k.data)
+
+    @cached_property
+    def shape(self) -> np.ndarray:
+        """Static deflection under a unit load at the drive point, 1 at the drive point."""
+        load = np.zeros(self.params.nodes)
+        load[-1] = 1.0
+        deflection = sp.linalg.spsolve(self.stiffness, load)
+        return deflection / deflection[-1]
+
+    @property
+    def tip_stiffness_n_m(self) -> float:
+        """Static stiffness seen at the drive point (3EI/L^3 for the continuous beam)."""
+        load = np.zeros(self.params.nodes)
+        load[-1] = 1.0
+        return 1.0 / sp.linalg.spsolve(self.stiffness, load)[-1]
+
+    def rest_shape(self, drive_position_m: float) -> np.ndarray:
+        """Node displacements of the static shape with the drive point at `drive_position_m`."""
+        return (drive_position_m - self.params.neutral_m) * self.shape
+
+    def _stock_penetrations(self, u):
+        """Penetration into the left and right stock rails of every toe node."""
+        p = self.params
+        idx = [int(i) for i in self.contact_nodes]
+        shape = ca.DM(self.shape[self.contact_nodes])
+        left = (p.left_stock_m - p.neutral_m) * shape - u[idx]
+        right = u[idx] - (p.right_stock_m - p.neutral_m) * shape
+        return idx, left, right
+
+    def internal_forces(self, u, v):
+        """Bending, structural damping, slide-chair friction and stock-rail contact forces on every node."""
+        p = self.params
+        forces = -ca.mtimes(self.stiffness_dm, u + p.structural_damping_s * v)
+        normal_n = ca.DM(self.masses_kg * GRAVITY_M_S2)
+        forces -= p.chair_friction_coefficient * normal_n * ca.tanh(v / p.chair_friction_speed_m_s)
+        forces -= p.chair_viscous_n_s_m * v
+        idx, left, right = self._stock_penetrations(u)
+        rate = v[idx]
+        contact = unilateral_contact(left, -rate, p.stock_stiffness_n_m, p.stock_damping_s_m) \
+            - unilateral_contact(right, rate, p.stock_stiffness_n_m, p.stock_damping_s_m)
+        forces[idx] += contact
+        return forces
+
+    def energy(self, u, v):
+        """Kinetic + bending + stock-contact elastic energy (J)."""
+        kinetic = 0.5 * ca.sum1(ca.DM(self.masses_kg) * v**2)
+        bending = 0.5 * ca.dot(u, ca.mtimes(self.stiffness_dm, u))
+        _, left, right = self._stock_penetrations(u)
+        contact = 0.5 * self.params.stock_stiffness_n_m * ca.sum1(ca.fmax(left, 0) ** 2 + ca.fmax(right, 0) ** 2)
+        return kinetic + bending + contact

@@ -1,0 +1,113 @@
+"""One simulated switch over time: throws, idle periods, measurement noise.
+
+Pure: it produces arrays of samples; the services turn them into messages.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from models.plant import Plant
+from models.reference import DIRECTIONS, THROW_DURATION_S, Reference, throw_reference
+
+MEASURED = ("current_a", "angle_rad", "velocity_rad_s")
+SETTLE_S = 1.0  # unpowered settling before the first sample, from the closed left position
+
+
+@dataclass(frozen=True)
+class Samples:
+    """Measured motor signals at consecutive sample indices (index * 1/rate seconds from start)."""
+
+    first_index: int
+    current_a: np.ndarray
+    angle_rad: np.ndarray
+    velocity_rad_s: np.ndarray
+    rail_position_m: np.ndarray  # not measured by the point machine; kept for tests and plots
+
+    def __len__(self) -> int:
+        return len(self.current_a)
+
+
+@dataclass(frozen=True)
+class Throw:
+    """One throw: its direction, reference profile, sample index span and samples."""
+
+    index: int
+    direction: str
+    reference: Reference
+    start_index: int  # sample index at the throw's start (already emitted before the throw)
+    samples: Samples
+
+    @property
+    def end_index(self) -> int:
+        return self.samples.first_index + len(self.samples) - 1
+
+
+@lru_cache(maxsize=4)
+def nominal_peaks(plant: Plant, rate_hz: float = 50.0) -> dict[str, float]:
+    """Peak magnitude of each measured signal over a nominal left-right-left pair of throws."""
+    switch = SwitchSimulation(plant, rate_hz=rate_hz)
+    throws = [switch.throw() for _ in range(2)]
+    return {name: float(max(np.abs(getattr(t.samples, name)).max() for t in throws)) for name in MEASURED}
+
+
+class SwitchSimulation:
+    """Advances one plant through throws (alternating, starting left to right from 1.00 m)."""
+
+    def __init__(self, plant: Plant, *, rate_hz: float = 50.0, faults: dict[str, float] | None = None,
+                 noise_rel: float = 0.0, seed: int = 0):
+        self.plant = plant
+        self.rate_hz = float(rate_hz)
+        self.faults = dict(faults or {})
+        self.noise_rel = float(noise_rel)
+        self._rng = np.random.default_rng(seed)
+        self._noise_std = {name: noise_rel * peak for name, peak in nominal_peaks(plant, rate_hz).items()} if noise_rel > 0 else {}
+        settled = plant.run(plant.rest_state(1.0), SETTLE_S, self.rate_hz, self.faults)
+        self.state = settled.states[:, -1]
+        self.sample_index = 0
+        self.throw_count = 0
+
+    def _samples(self, trajectory, first_index: int) -> Samples:
+        measured = {}
+        for name in MEASURED:
+            values = trajectory[name]
+            if name in self._noise_std:
+                values = values + self._rng.normal(0.0, self._noise_std[name], size=values.shape)
+            measured[name] = values
+        return Samples(first_index, rail_position_m=trajectory["rail_position_m"], **measured)
+
+    def initial_sample(self) -> Samples:
+        """The sample at index 0, before anything moves."""
+        signals = self.plant.signals_at(self.state, self.faults)
+        trajectory = {name: np.array([signals[name]]) for name in (*MEASURED, "rail_position_m")}
+        return self._samples(trajectory, 0)
+
+    def next_direction(self) -> str:
+        return DIRECTIONS[self.throw_count % 2]
+
+    def throw(self, direction: str | None = None, reference: Reference | None = None) -> Throw:
+        """Power the motor for one throw of 7 s and return its samples."""
+        direction = direction or self.next_direction()
+        reference = reference or throw_reference(direction, self.plant.params.drive)
+        trajectory = self.plant.run(self.plant.start_throw(self.state), THROW_DURATION_S, self.rate_hz,
+                                    self.faults, reference)
+        start = self.sample_index
+        throw = Throw(self.throw_count, direction, reference, start, self._samples(trajectory, start + 1))
+        self.state = trajectory.states[:, -1]
+        self.sample_index = throw.end_index
+        self.throw_count += 1
+        return throw
+
+    def idle(self, duration_s: float) -> Samples:
+        """Motor unpowered for `duration_s`; the rails stay where the last throw left them."""
+        trajectory = self.plant.run(self.state, duration_s, self.rate_hz, self.faults)
+        samples = self._samples(trajectory, self.sample_index + 1)
+        self.state = trajectory.states[:, -1]
+        self.sample_index += len(samples)
+        return samples
+
+    def time_ns(self, sample_index: int) -> int:
+        """Integer nanoseconds of a sample index from the simulation's start."""
+        return round(sample_index * 1_000_000_000 / self.rate_hz)

@@ -1,0 +1,105 @@
+"""Cut a switch's message stream into throws: samples between a start and an end event."""
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from schemas import FaultTruth, Message, MotorSample, ThrowEvent
+
+
+@dataclass(frozen=True)
+class CutThrow:
+    """The samples of one throw, time relative to its start event."""
+
+    switch_id: str
+    start: ThrowEvent
+    end: ThrowEvent | None  # None: the stream ended before the throw did
+    t_s: np.ndarray
+    current_a: np.ndarray
+    angle_rad: np.ndarray
+    velocity_rad_s: np.ndarray
+    missing_samples: int  # seq numbers skipped inside the throw
+    truth: FaultTruth | None
+
+    @property
+    def complete(self) -> bool:
+        return self.end is not None
+
+
+@dataclass
+class _OpenThrow:
+    start: ThrowEvent
+    samples: list[MotorSample] = field(default_factory=list)
+    truth: FaultTruth | None = None
+
+
+class ThrowCutter:
+    """Feeds on messages of any number of switches and emits each throw once its end event arrives.
+
+    The sample at the start event's time belongs to the throw (it is the last
+    sample before the motor is powered), as does the one at the end event's time.
+    """
+
+    def __init__(self) -> None:
+        self._open: dict[str, _OpenThrow] = {}
+        self._last_sample: dict[str, MotorSample] = {}
+        self._truth: dict[str, FaultTruth] = {}
+
+    def feed(self, message: Message) -> CutThrow | None:
+        """Take one message; return the throw it completes, if any."""
+        if isinstance(message, FaultTruth):
+            self._truth[message.switch_id] = message
+        elif isinstance(message, MotorSample):
+            self._last_sample[message.switch_id] = message
+            current = self._open.get(message.switch_id)
+            if current is not None and message.t_ns >= current.start.t_ns:
+                current.samples.append(message)
+        elif isinstance(message, ThrowEvent):
+            return self._event(message)
+        return None
+
+    def _event(self, event: ThrowEvent) -> CutThrow | None:
+        current = self._open.get(event.switch_id)
+        if event.phase == "start":
+            opened = _OpenThrow(event, truth=self._truth.get(event.switch_id))
+            last = self._last_sample.get(event.switch_id)
+            if last is not None and last.t_ns == event.t_ns:
+                opened.samples.append(last)
+            self._open[event.switch_id] = opened
+            return None
+        if current is None or current.start.throw_index != event.throw_index:
+            return None
+        del self._open[event.switch_id]
+        return _cut(current, event)
+
+    def flush(self) -> Iterator[CutThrow]:
+        """Throws that started but never ended (the stream stopped)."""
+        for current in self._open.values():
+            yield _cut(current, None)
+        self._open.clear()
+
+
+def _cut(current: _OpenThrow, end: ThrowEvent | None) -> CutThrow:
+    samples = [s for s in current.samples if end is None or s.t_ns <= end.t_ns]
+    seqs = np.array([s.seq for s in samples], dtype=np.int64)
+    missing = int(np.sum(np.diff(seqs) - 1)) if len(seqs) > 1 else 0
+    t0 = current.start.t_ns
+    return CutThrow(
+        switch_id=current.start.switch_id, start=current.start, end=end,
+        t_s=np.array([(s.t_ns - t0) * 1e-9 for s in samples]),
+        current_a=np.array([s.current_a for s in samples]),
+        angle_rad=np.array([s.angle_rad for s in samples]),
+        velocity_rad_s=np.array([s.velocity_rad_s for s in samples]),
+        missing_samples=missing, truth=current.truth)
+
+
+def cut_throws(messages: Iterable[Message]) -> Iterator[CutThrow]:
+    """All throws of an ordered message stream, incomplete ones last."""
+    cutter = ThrowCutter()
+    for message in messages:
+        throw = cutter.feed(message)
+        if throw is not None:
+            yield throw
+    yield from cutter.flush()
