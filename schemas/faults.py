@@ -1,0 +1,73 @@
+"""The fault modes and parameters of DESIGN.md section 3, as data shared by every part."""
+
+import math
+from dataclasses import dataclass
+from typing import Literal, get_args
+
+FaultMode = Literal["left_bolt", "right_bolt", "missing_bearing", "obstacle"]
+Decision = Literal["nominal", FaultMode, "unknown"]
+
+FAULT_MODES: tuple[FaultMode, ...] = get_args(FaultMode)
+DECISIONS: tuple[Decision, ...] = get_args(Decision)
+
+
+@dataclass(frozen=True)
+class FaultParameter:
+    """One injectable fault parameter: the mode it belongs to, SI unit, nominal value and range."""
+
+    name: str
+    mode: FaultMode
+    unit: str
+    nominal: float
+    low: float
+    high: float
+
+
+FAULT_PARAMETERS: dict[str, FaultParameter] = {
+    p.name: p
+    for p in (
+        FaultParameter("left_bolt_offset", "left_bolt", "m", 0.0, -0.02, 0.20),
+        FaultParameter("right_bolt_offset", "right_bolt", "m", 0.0, -0.02, 0.20),
+        FaultParameter("bearing_friction", "missing_bearing", "N·s/m", 0.0, 0.0, 10_000.0),
+        FaultParameter("obstacle_friction", "obstacle", "N·s/m", 0.0, 0.0, 300_000.0),
+        # Nominal position is only a placeholder: it matters only when obstacle_friction > 0.
+        FaultParameter("obstacle_position", "obstacle", "m", 1.10, 1.02, 1.18),
+    )
+}
+
+MODE_PARAMETERS: dict[FaultMode, tuple[str, ...]] = {
+    mode: tuple(p.name for p in FAULT_PARAMETERS.values() if p.mode == mode)
+    for mode in FAULT_MODES
+}
+
+
+def _fmt(x: float) -> str:
+    """Shortest text that reads back exactly: 300000 rather than 300000.0."""
+    short = f"{x:g}"
+    return short if float(short) == x else repr(x)
+
+
+def check_fault_name(name: str) -> str:
+    """Return name if it is a fault parameter, else raise ValueError listing the accepted names."""
+    if name not in FAULT_PARAMETERS:
+        accepted = ", ".join(FAULT_PARAMETERS)
+        raise ValueError(f"unknown fault parameter {name!r}; accepted: {accepted}")
+    return name
+
+
+def check_fault_value(name: str, value: float | str) -> float:
+    """Return value as a float if name is known and value finite and in range; else ValueError.
+
+    Strings are parsed, so a command line can pass the text after NAME= unchanged.
+    """
+    p = FAULT_PARAMETERS[check_fault_name(name)]
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}={value!r} is not a number") from None
+    if not math.isfinite(x):
+        raise ValueError(f"{name}={value} is not a finite number")
+    if not p.low <= x <= p.high:
+        accepted = f"{_fmt(p.low)} … {_fmt(p.high)} {p.unit}"
+        raise ValueError(f"{name}={_fmt(x)} is outside the accepted range {accepted}")
+    return x

@@ -1,0 +1,250 @@
+"""Pydantic models of every payload on the bus and every MCAP channel (DESIGN.md 4, 5)."""
+
+import json
+import re
+from typing import Annotated, Literal, Self, TypeVar
+
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
+
+from schemas.faults import (
+    FAULT_MODES,
+    FAULT_PARAMETERS,
+    Decision,
+    FaultMode,
+    check_fault_name,
+    check_fault_value,
+)
+
+M = TypeVar("M", bound=BaseModel)
+
+SWITCH_ID_PATTERN = r"^[A-Za-z0-9_-]{1,64}$"
+
+
+def check_switch_id(value: str) -> str:
+    """Return value if it can stand as one chunk of a Zenoh key expression; else ValueError."""
+    if not re.fullmatch(SWITCH_ID_PATTERN, value):
+        raise ValueError(
+            f"switch_id {value!r} must be 1 to 64 letters, digits, '_' or '-' "
+            "(it becomes part of a Zenoh key expression)"
+        )
+    return value
+
+
+def _check_fault_names(params: dict[str, float]) -> dict[str, float]:
+    """Reject keys that are not fault parameter names, naming the bad one."""
+    for name in params:
+        check_fault_name(name)
+    return params
+
+
+def _check_fault_values(params: dict[str, float]) -> dict[str, float]:
+    """Reject unknown names and out-of-range values, as the plant would."""
+    return {name: check_fault_value(name, value) for name, value in params.items()}
+
+
+# Finite floats everywhere come from the model config (allow_inf_nan=False), which also
+# reaches list items and dict values; tests/test_schemas.py holds that to account.
+SwitchId = Annotated[
+    str, AfterValidator(check_switch_id), Field(json_schema_extra={"pattern": SWITCH_ID_PATTERN})
+]
+TimeNs = Annotated[int, Field(ge=0, description="nanoseconds")]
+Index = Annotated[int, Field(ge=0)]
+NonNegative = Annotated[float, Field(ge=0)]
+Profile = Annotated[list[float], Field(min_length=2, max_length=10_000)]
+Direction = Literal["left_to_right", "right_to_left"]
+
+
+class Message(BaseModel):
+    """Common base: immutable, no unknown fields, no NaN or infinity anywhere."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=True)
+
+
+class MotorSample(Message):
+    """One sample of the point machine's motor: current, angle and angular velocity."""
+
+    switch_id: SwitchId
+    seq: Index
+    t_ns: TimeNs
+    current_a: float
+    angle_rad: float
+    velocity_rad_s: float
+
+
+class ThrowEvent(Message):
+    """Start or end of a throw, with the motor's piecewise-linear reference velocity profile."""
+
+    switch_id: SwitchId
+    throw_index: Index
+    direction: Direction
+    phase: Literal["start", "end"]
+    t_ns: TimeNs
+    reference_t_s: Profile
+    reference_velocity_rad_s: Profile
+
+    @model_validator(mode="after")
+    def _check_profile(self) -> Self:
+        """Breakpoints pair up, start at the throw's start and never go back in time."""
+        t = self.reference_t_s
+        if len(t) != len(self.reference_velocity_rad_s):
+            raise ValueError("reference_t_s and reference_velocity_rad_s differ in length")
+        if t[0] != 0.0:
+            raise ValueError("reference_t_s must start at 0")
+        if any(b < a for a, b in zip(t, t[1:])):
+            raise ValueError("reference_t_s must be non-decreasing")
+        return self
+
+
+class FaultTruth(Message):
+    """The fault parameters injected in the plant at t_ns, published for evaluation."""
+
+    switch_id: SwitchId
+    t_ns: TimeNs
+    left_bolt_offset: float = 0.0
+    right_bolt_offset: float = 0.0
+    bearing_friction: float = 0.0
+    obstacle_friction: float = 0.0
+    obstacle_position: float | None = None
+
+    @field_validator(*FAULT_PARAMETERS)
+    @classmethod
+    def _check_range(cls, value: float | None, info: ValidationInfo) -> float | None:
+        """Every value set lies in the range of DESIGN.md section 3."""
+        return None if value is None else check_fault_value(str(info.field_name), value)
+
+    def params(self) -> dict[str, float]:
+        """All five parameters, obstacle_position falling back to its nominal when unset."""
+        values = self.model_dump(include=set(FAULT_PARAMETERS))
+        if values["obstacle_position"] is None:
+            values["obstacle_position"] = FAULT_PARAMETERS["obstacle_position"].nominal
+        return values
+
+    def active_modes(self) -> list[FaultMode]:
+        """Modes with a parameter off nominal; an obstacle counts only with friction > 0."""
+        values = self.params()
+        values.pop("obstacle_position")  # where an obstacle would sit is no fault by itself
+        changed = {
+            FAULT_PARAMETERS[n].mode for n, v in values.items() if v != FAULT_PARAMETERS[n].nominal
+        }
+        return [m for m in FAULT_MODES if m in changed]
+
+
+class FaultCommand(Message):
+    """Set fault parameters of a live simulator; reset first returns the others to nominal."""
+
+    switch_id: SwitchId
+    params: Annotated[dict[str, float], AfterValidator(_check_fault_values)] = {}
+    reset: bool = False
+
+    @model_validator(mode="after")
+    def _check_not_empty(self) -> Self:
+        """A command without parameters does nothing unless it resets."""
+        if not self.params and not self.reset:
+            raise ValueError("params needs at least one entry unless reset is true")
+        return self
+
+
+class Hypothesis(Message):
+    """Parameters estimated under one fault mode (or all at once: joint) and the fit's error."""
+
+    mode: Literal["nominal", FaultMode, "joint"]
+    params: Annotated[dict[str, float], AfterValidator(_check_fault_names)]
+    std: Annotated[dict[str, NonNegative], AfterValidator(_check_fault_names)] = {}
+    mse: NonNegative
+
+
+class Diagnosis(Message):
+    """The diagnoser's verdict on one throw."""
+
+    switch_id: SwitchId
+    throw_index: Index
+    direction: Direction
+    t_start_ns: TimeNs
+    t_end_ns: TimeNs
+    model: Literal["poly", "nn", "causal"]
+    decision: Decision
+    reason: str | None = None
+    hypotheses: list[Hypothesis] = []
+    joint: Hypothesis | None = None
+    latency_ms: NonNegative
+
+    @model_validator(mode="after")
+    def _check_consistency(self) -> Self:
+        """The throw ends after it starts, and an unknown decision says why."""
+        if self.t_end_ns < self.t_start_ns:
+            raise ValueError("t_end_ns is before t_start_ns")
+        if self.decision == "unknown" and not (self.reason and self.reason.strip()):
+            raise ValueError("decision 'unknown' needs a non-empty reason")
+        return self
+
+
+CHANNEL_MODELS: dict[str, type[Message]] = {
+    "motor": MotorSample,
+    "throw": ThrowEvent,
+    "truth": FaultTruth,
+    "diagnosis": Diagnosis,
+    "inject": FaultCommand,
+}
+
+KEY_PREFIX = "railswitch"
+
+
+def key_expr(switch_id: str, kind: str) -> str:
+    """Zenoh key expression and MCAP topic of one switch's channel: railswitch/<id>/<kind>."""
+    if kind not in CHANNEL_MODELS:
+        accepted = ", ".join(CHANNEL_MODELS)
+        raise ValueError(f"unknown channel kind {kind!r}; accepted: {accepted}")
+    return f"{KEY_PREFIX}/{check_switch_id(switch_id)}/{kind}"
+
+
+def parse_key_expr(key: str) -> tuple[str, str]:
+    """Inverse of key_expr: (switch_id, kind), or ValueError for any other key."""
+    parts = key.split("/")
+    if len(parts) != 3 or parts[0] != KEY_PREFIX:
+        raise ValueError(f"key {key!r} is not of the form {KEY_PREFIX}/<switch_id>/<kind>")
+    switch_id, kind = parts[1], parts[2]
+    try:
+        key_expr(switch_id, kind)
+    except ValueError as e:
+        raise ValueError(f"key {key!r}: {e}") from None
+    return switch_id, kind
+
+
+def json_schema(model_cls: type[BaseModel]) -> str:
+    """JSON Schema of a model as compact, key-sorted text, identical on every run."""
+    return json.dumps(model_cls.model_json_schema(), sort_keys=True, separators=(",", ":"))
+
+
+class MessageError(ValueError):
+    """A payload that could not become a message; str() is a short reason fit for counting."""
+
+
+def encode(msg: BaseModel) -> bytes:
+    """Compact UTF-8 JSON of a message, as published on the bus and stored in MCAP."""
+    return msg.model_dump_json().encode()
+
+
+def decode(model_cls: type[M], data: bytes) -> M:
+    """Parse and validate a payload; every failure is a MessageError with a short reason."""
+    try:
+        data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise MessageError("not utf-8") from None
+    try:
+        return model_cls.model_validate_json(data)
+    except ValidationError as e:
+        first = e.errors(include_url=False)[0]
+        if first["type"] == "json_invalid":
+            raise MessageError("not json") from None
+        loc = ".".join(map(str, first["loc"]))
+        reason = f"{loc}: {first['msg']}" if loc else first["msg"]
+        raise MessageError(f"validation: {reason}") from None
