@@ -94,6 +94,12 @@ class Plant:
         self.energy = ca.Function("energy", [x, theta], [rail_energy, rail_energy + drive_energy],
                                   ["x", "fault"], ["rails", "total"])
 
+    def ode_function(self) -> ca.Function:
+        """The right-hand side f(t, x, fault, control) and its sparse Jacobian in x."""
+        d = self._dae
+        return ca.Function("plant_ode", [d["t"], d["x"], d["p"], d["u"]], [d["ode"], ca.jacobian(d["ode"], d["x"])],
+                           ["t", "x", "fault", "control"], ["ode", "jac_x"])
+
     @lru_cache(maxsize=16)
     def _integrator(self, dt_s: float, steps: int) -> ca.Function:
         """CVODES over `steps` output intervals of `dt_s`; built once per grid, reused."""
@@ -152,15 +158,13 @@ class Plant:
         scalars = sum(len(vars(part)) for part in (p.motor, p.controller, p.drive, p.adjuster, p.rail, p.obstacle))
         per_node = 4 * self.nodes  # mass, chair normal load, bearing share, static shape
         contact = 2 * len(self.beam.contact_nodes)  # stock-rail gaps on each side
-        jac = ca.Function("j", [self._dae["x"], self._dae["p"], self._dae["u"], self._dae["t"]],
-                          [ca.jacobian(self._dae["ode"], self._dae["x"])])
         return {
             "states": self.n_states,
             "parameters": scalars + per_node + contact + int(self.beam.stiffness.nnz) + len(FAULT_ORDER),
             "rail_nodes": self.nodes,
             "rail_states": 2 * self.nodes,
             "fault_parameters": list(FAULT_ORDER),
-            "jacobian_nonzeros": int(jac.sparsity_out(0).nnz()),
-            "rail_tip_stiffness_n_m": round(self.beam.tip_stiffness_n_m, 1),
+            "jacobian_nonzeros": int(self.ode_function().sparsity_out("jac_x").nnz()),
+            "rail_tip_stiffness_n_m": round(float(self.beam.tip_stiffness_n_m), 1),
             "solver": "cvodes (BDF, sparse direct Newton, AD Jacobian)",
         }

@@ -69,6 +69,10 @@ class SwitchSimulation:
         self.sample_index = 0
         self.throw_count = 0
 
+    def set_faults(self, faults: dict[str, float]) -> None:
+        """Replace the injected faults; they act from the next sample on."""
+        self.faults = dict(faults)
+
     def _samples(self, trajectory, first_index: int) -> Samples:
         measured = {}
         for name in MEASURED:
