@@ -16,8 +16,8 @@ import casadi as ca
 class AdjusterParams:
     """Nominal free play on each side and the bolt contact law."""
 
-    free_play_m: float = 0.02
-    contact_stiffness_n_m: float = 2.0e6
+    free_play_m: float = 0.04  # on the rod, each side
+    contact_stiffness_n_m: float = 1.0e6
     contact_damping_s_m: float = 5.0  # Hunt-Crossley lambda / stiffness [s/m]
 
 
@@ -31,19 +31,22 @@ def unilateral_contact(penetration_m, penetration_rate_m_s, stiffness_n_m: float
     return ca.fmax(stiffness_n_m * depth * (1.0 + damping_s_m * penetration_rate_m_s), 0.0)
 
 
-def adjuster_force(params: AdjusterParams, rod_m, rod_velocity_m_s, rail_m, rail_velocity_m_s,
+def adjuster_force(params: AdjusterParams, rod_m, rod_velocity_m_s, adjuster_m, adjuster_velocity_m_s,
                    left_bolt_offset, right_bolt_offset):
-    """Force the rod exerts on the rails through the bolts (positive pushes to the right)."""
+    """Force the bolts exert on the adjuster along the rod (positive pushes to the right).
+
+    All positions are rod coordinates (see models/drive.py).
+    """
     left_face = rod_m - (params.free_play_m + left_bolt_offset)
     right_face = rod_m + (params.free_play_m + right_bolt_offset)
-    relative = rod_velocity_m_s - rail_velocity_m_s
-    push_right = unilateral_contact(left_face - rail_m, relative, params.contact_stiffness_n_m, params.contact_damping_s_m)
-    push_left = unilateral_contact(rail_m - right_face, -relative, params.contact_stiffness_n_m, params.contact_damping_s_m)
+    relative = rod_velocity_m_s - adjuster_velocity_m_s
+    push_right = unilateral_contact(left_face - adjuster_m, relative, params.contact_stiffness_n_m, params.contact_damping_s_m)
+    push_left = unilateral_contact(adjuster_m - right_face, -relative, params.contact_stiffness_n_m, params.contact_damping_s_m)
     return push_right - push_left
 
 
-def adjuster_energy(params: AdjusterParams, rod_m, rail_m, left_bolt_offset, right_bolt_offset):
+def adjuster_energy(params: AdjusterParams, rod_m, adjuster_m, left_bolt_offset, right_bolt_offset):
     """Elastic energy stored in the bolt contacts."""
-    left = ca.fmax(rod_m - (params.free_play_m + left_bolt_offset) - rail_m, 0.0)
-    right = ca.fmax(rail_m - rod_m - (params.free_play_m + right_bolt_offset), 0.0)
+    left = ca.fmax(rod_m - (params.free_play_m + left_bolt_offset) - adjuster_m, 0.0)
+    right = ca.fmax(adjuster_m - rod_m - (params.free_play_m + right_bolt_offset), 0.0)
     return 0.5 * params.contact_stiffness_n_m * (left**2 + right**2)

@@ -14,7 +14,7 @@ import casadi as ca
 import numpy as np
 
 from models.adjuster import AdjusterParams, adjuster_energy, adjuster_force
-from models.drive import DriveParams, rod_kinematics
+from models.drive import DriveParams, adjuster_on_rod, rod_kinematics
 from models.faults import FAULT_ORDER, ObstacleParams, bearing_weights, fault_vector, obstacle_profile, unpack
 from models.motor import ControllerParams, MotorParams, controller, motor_derivatives
 from models.rail_beam import RailBeam, RailParams
@@ -71,8 +71,10 @@ class Plant:
 
         rail_m = p.rail.neutral_m + u[n - 1]
         rod_m, rod_velocity, lever_m = rod_kinematics(p.drive, angle, omega)
-        drive_force = adjuster_force(p.adjuster, rod_m, rod_velocity, rail_m, v[n - 1],
-                                     faults["left_bolt_offset"], faults["right_bolt_offset"])
+        adjuster_m, adjuster_velocity = adjuster_on_rod(p.drive, rail_m, v[n - 1])
+        rod_force = adjuster_force(p.adjuster, rod_m, rod_velocity, adjuster_m, adjuster_velocity,
+                                   faults["left_bolt_offset"], faults["right_bolt_offset"])
+        drive_force = p.drive.linkage_ratio * rod_force  # on the blades, by virtual work through the lever
 
         forces = self.beam.internal_forces(u, v)
         forces -= faults["bearing_friction"] * ca.DM(bearing_weights(self.beam.masses_kg, self.beam.shape)) * v
@@ -82,14 +84,14 @@ class Plant:
 
         omega_ref = control[0] + control[1] * t
         voltage, d_integral = controller(p.controller, p.motor, omega_ref, omega, integral, control[2])
-        d_current, d_omega = motor_derivatives(p.motor, voltage, current, omega, drive_force * lever_m)
+        d_current, d_omega = motor_derivatives(p.motor, voltage, current, omega, rod_force * lever_m)
 
         ode = ca.vertcat(v, acceleration, d_current, omega, d_omega, d_integral)
         self._dae = {"x": x, "p": theta, "u": control, "t": t, "ode": ode}
         outputs = ca.vertcat(current, angle, omega, rail_m, v[n - 1], drive_force, rod_m)
         self._outputs = ca.Function("outputs", [x, theta], [outputs])
         rail_energy = self.beam.energy(u, v)
-        drive_energy = (adjuster_energy(p.adjuster, rod_m, rail_m, faults["left_bolt_offset"], faults["right_bolt_offset"])
+        drive_energy = (adjuster_energy(p.adjuster, rod_m, adjuster_m, faults["left_bolt_offset"], faults["right_bolt_offset"])
                         + 0.5 * p.motor.rotor_inertia_kg_m2 * omega**2 + 0.5 * p.motor.inductance_h * current**2)
         self.energy = ca.Function("energy", [x, theta], [rail_energy, rail_energy + drive_energy],
                                   ["x", "fault"], ["rails", "total"])

@@ -59,11 +59,12 @@ class RecordingWriter:
 
     With atomic=True the data goes to .<name>.partial beside path and is renamed to path only
     if the with block succeeds, so a failed run leaves no file. With atomic=False the file is
-    finished even on error, which suits a live recorder stopped by a signal.
+    finished even on error, which suits a live recorder stopped by a signal. Chunks of 32 KiB
+    (a few seconds of one switch) bound what damage at the end of a file can cost.
     """
 
     def __init__(
-        self, path: str | os.PathLike[str], *, chunk_size: int = 1_048_576, atomic: bool = True
+        self, path: str | os.PathLike[str], *, chunk_size: int = 32_768, atomic: bool = True
     ) -> None:
         self.path = check_writable(path)
         self.message_count = 0

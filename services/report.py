@@ -35,11 +35,12 @@ def load_throws(path: Path) -> list[CutThrow]:
     """Throws of one recording; damage is reported on stderr with what could be read."""
     reader = RecordingReader(path)
     throws = list(cut_throws(message.message for message in reader))
-    if reader.damage:
-        print(f"railswitch report: {path}: {reader.damage}; using {reader.messages_read} messages read before it",
-              file=sys.stderr)
+    damage = f"; {reader.damage}" if reader.damage else ""
     if not throws:
-        raise ValueError(f"{path}: no throws found ({reader.messages_read} messages read)")
+        raise ValueError(f"{path}: no throws found in {reader.messages_read} messages{damage}")
+    if damage:
+        print(f"railswitch report: {path}: {reader.damage}; using the {reader.messages_read} messages before it",
+              file=sys.stderr)
     return throws
 
 

@@ -1,0 +1,87 @@
+"""Wall time of the high-fidelity plant over two throws (14 s simulated) on one core.
+
+Also times scipy's BDF on the same equations, given the same exact sparse
+Jacobian, to justify CVODES as the plant's integrator.
+"""
+from __future__ import annotations
+
+import statistics
+import time
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.integrate import solve_ivp
+
+from benchmarks.common import emit, parser, pin_to_one_core
+from models.plant import Plant
+from models.reference import THROW_DURATION_S, throw_reference
+from models.switch import SwitchSimulation
+
+SIM_SECONDS = 2 * THROW_DURATION_S
+
+
+def two_throws(plant: Plant) -> tuple[float, np.ndarray]:
+    sim = SwitchSimulation(plant)
+    start = time.perf_counter()
+    throws = [sim.throw() for _ in range(2)]
+    return time.perf_counter() - start, np.concatenate([t.samples.rail_position_m for t in throws])
+
+
+def scipy_bdf_two_throws(plant: Plant) -> tuple[float, np.ndarray]:
+    """The same two throws with scipy's BDF, CasADi-evaluated right-hand side and Jacobian."""
+    f = plant.ode_function()
+    sim = SwitchSimulation(plant)
+    state, fault = sim.state, np.zeros(5)
+    fault[4] = 1.10
+    rails = []
+    start = time.perf_counter()
+    for direction in ("left_to_right", "right_to_left"):
+        reference = throw_reference(direction)
+        state = plant.start_throw(state)
+
+        def control(t):
+            return np.array([reference(t), 0.0, 1.0])
+
+        def rhs(t, x):
+            return np.asarray(f(t, x, fault, control(t))[0]).ravel()
+
+        def jac(t, x):
+            return sp.csc_matrix(f(t, x, fault, control(t))[1])
+
+        grid = np.arange(1, 351) / 50.0
+        solution = solve_ivp(rhs, (0.0, THROW_DURATION_S), state, method="BDF", jac=jac, t_eval=grid,
+                             rtol=1e-6, atol=1e-7)
+        state = solution.y[:, -1]
+        rails.append(plant.params.rail.neutral_m + solution.y[plant.nodes - 1])
+    return time.perf_counter() - start, np.concatenate(rails)
+
+
+def main() -> None:
+    args = parser(__doc__).parse_args()
+    core = pin_to_one_core()
+    start = time.perf_counter()
+    plant = Plant()
+    first, reference_rails = two_throws(plant)  # includes building the CVODES integrator
+    build = time.perf_counter() - start - first
+    runs = [two_throws(plant)[0] for _ in range(5)]
+    wall = statistics.median(runs)
+    scipy_wall, scipy_rails = scipy_bdf_two_throws(plant)
+    stats = plant.describe()
+    emit({
+        "states": stats["states"],
+        "rail_nodes": stats["rail_nodes"],
+        "sim_seconds": SIM_SECONDS,
+        "wall_seconds": round(wall, 4),
+        "realtime_factor": round(SIM_SECONDS / wall, 1),
+        "first_run_wall_seconds": round(first, 4),
+        "build_seconds": round(build, 3),
+        "solver": "cvodes",
+        "scipy_bdf_wall_seconds": round(scipy_wall, 3),
+        "scipy_bdf_realtime_factor": round(SIM_SECONDS / scipy_wall, 2),
+        "scipy_vs_cvodes_max_rail_diff_m": float(np.max(np.abs(scipy_rails - reference_rails))),
+        "core": core,
+    }, args.json)
+
+
+if __name__ == "__main__":
+    main()
