@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import casadi as ca
 
+from models.smooth import softplus
+
 
 @dataclass(frozen=True)
 class AdjusterParams:
@@ -31,17 +33,25 @@ def unilateral_contact(penetration_m, penetration_rate_m_s, stiffness_n_m: float
     return ca.fmax(stiffness_n_m * depth * (1.0 + damping_s_m * penetration_rate_m_s), 0.0)
 
 
+def smooth_contact(penetration_m, penetration_rate_m_s, stiffness_n_m: float, damping_s_m: float,
+                   width_m: float = 2e-4):
+    """Differentiable stand-in for `unilateral_contact` (softplus depth of `width_m`), for the reduced models."""
+    depth = softplus(penetration_m, width_m)
+    return stiffness_n_m * depth * (1.0 + damping_s_m * penetration_rate_m_s)
+
+
 def adjuster_force(params: AdjusterParams, rod_m, rod_velocity_m_s, adjuster_m, adjuster_velocity_m_s,
-                   left_bolt_offset, right_bolt_offset):
+                   left_bolt_offset, right_bolt_offset, contact=unilateral_contact):
     """Force the bolts exert on the adjuster along the rod (positive pushes to the right).
 
-    All positions are rod coordinates (see models/drive.py).
+    All positions are rod coordinates (see models/drive.py). `contact` is the
+    contact law: the plant's exact one or `smooth_contact`.
     """
     left_face = rod_m - (params.free_play_m + left_bolt_offset)
     right_face = rod_m + (params.free_play_m + right_bolt_offset)
     relative = rod_velocity_m_s - adjuster_velocity_m_s
-    push_right = unilateral_contact(left_face - adjuster_m, relative, params.contact_stiffness_n_m, params.contact_damping_s_m)
-    push_left = unilateral_contact(adjuster_m - right_face, -relative, params.contact_stiffness_n_m, params.contact_damping_s_m)
+    push_right = contact(left_face - adjuster_m, relative, params.contact_stiffness_n_m, params.contact_damping_s_m)
+    push_left = contact(adjuster_m - right_face, -relative, params.contact_stiffness_n_m, params.contact_damping_s_m)
     return push_right - push_left
 
 

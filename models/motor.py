@@ -39,7 +39,8 @@ def saturate(value, limit: float):
     return ca.fmin(ca.fmax(value, -limit), limit)
 
 
-def controller(params: ControllerParams, motor: MotorParams, omega_ref, omega, integral_v, enabled):
+def controller(params: ControllerParams, motor: MotorParams, omega_ref, omega, integral_v, enabled,
+               clip=saturate):
     """Armature voltage and integrator derivative of the PI speed loop.
 
     `enabled` is 1 while the point machine is powered and 0 otherwise; with 0
@@ -47,7 +48,7 @@ def controller(params: ControllerParams, motor: MotorParams, omega_ref, omega, i
     """
     error = omega_ref - omega
     raw_v = params.kp_v_s_rad * error + integral_v
-    voltage = saturate(raw_v, motor.supply_v)
+    voltage = clip(raw_v, motor.supply_v)
     d_integral = params.ki_v_rad * error + params.antiwindup_1_s * (voltage - raw_v)
     return enabled * voltage, enabled * d_integral
 

@@ -15,12 +15,14 @@ import numpy as np
 
 from models.adjuster import AdjusterParams, adjuster_energy, adjuster_force
 from models.drive import DriveParams, adjuster_on_rod, rod_kinematics
+from models.lock import LockParams, latched_hooks, lock_terms
 from models.faults import FAULT_ORDER, ObstacleParams, bearing_weights, fault_vector, obstacle_profile, unpack
 from models.motor import ControllerParams, MotorParams, controller, motor_derivatives
 from models.rail_beam import RailBeam, RailParams
 from models.reference import Reference
 
-SIGNALS = ("current_a", "angle_rad", "velocity_rad_s", "rail_position_m", "rail_velocity_m_s", "drive_force_n", "rod_position_m")
+SIGNALS = ("current_a", "angle_rad", "velocity_rad_s", "rail_position_m", "rail_velocity_m_s",
+           "rail_acceleration_m_s2", "drive_force_n", "rod_position_m")
 
 
 @dataclass(frozen=True)
@@ -29,6 +31,7 @@ class PlantParams:
     controller: ControllerParams = field(default_factory=ControllerParams)
     drive: DriveParams = field(default_factory=DriveParams)
     adjuster: AdjusterParams = field(default_factory=AdjusterParams)
+    lock: LockParams = field(default_factory=LockParams)
     rail: RailParams = field(default_factory=RailParams)
     obstacle: ObstacleParams = field(default_factory=ObstacleParams)
 
@@ -52,9 +55,10 @@ class Plant:
         self.params = params
         self.beam = RailBeam(params.rail)
         self.nodes = params.rail.nodes
-        self.n_states = 2 * self.nodes + 4
+        self.n_states = 2 * self.nodes + 6
         self.index = {"current_a": 2 * self.nodes, "angle_rad": 2 * self.nodes + 1,
-                      "velocity_rad_s": 2 * self.nodes + 2, "integral_v": 2 * self.nodes + 3}
+                      "velocity_rad_s": 2 * self.nodes + 2, "integral_v": 2 * self.nodes + 3,
+                      "hook_left": 2 * self.nodes + 4, "hook_right": 2 * self.nodes + 5}
         self._tolerances = {"reltol": reltol, "abstol": abstol}
         self._build()
 
@@ -67,6 +71,7 @@ class Plant:
         t = ca.SX.sym("t")
         u, v = x[:n], x[n:2 * n]
         current, angle, omega, integral = x[2 * n], x[2 * n + 1], x[2 * n + 2], x[2 * n + 3]
+        hooks = x[2 * n + 4:2 * n + 6]
         faults = unpack(theta)
 
         rail_m = p.rail.neutral_m + u[n - 1]
@@ -76,21 +81,24 @@ class Plant:
                                    faults["left_bolt_offset"], faults["right_bolt_offset"])
         drive_force = p.drive.linkage_ratio * rod_force  # on the blades, by virtual work through the lever
 
+        lock = lock_terms(p.lock, p.drive, p.adjuster, p.rail.left_stock_m, p.rail.right_stock_m, rail_m, rod_m, hooks,
+                          faults["left_bolt_offset"], faults["right_bolt_offset"])
         forces = self.beam.internal_forces(u, v)
         forces -= faults["bearing_friction"] * ca.DM(bearing_weights(self.beam.masses_kg, self.beam.shape)) * v
         obstacle = faults["obstacle_friction"] * obstacle_profile(p.obstacle, rail_m, faults["obstacle_position"])
-        forces[n - 1] += drive_force - obstacle * v[n - 1]
+        forces[n - 1] += drive_force + lock.force_n - obstacle * v[n - 1]
         acceleration = forces / ca.DM(self.beam.masses_kg)
 
         omega_ref = control[0] + control[1] * t
         voltage, d_integral = controller(p.controller, p.motor, omega_ref, omega, integral, control[2])
         d_current, d_omega = motor_derivatives(p.motor, voltage, current, omega, rod_force * lever_m)
 
-        ode = ca.vertcat(v, acceleration, d_current, omega, d_omega, d_integral)
+        ode = ca.vertcat(v, acceleration, d_current, omega, d_omega, d_integral, lock.d_hooks)
         self._dae = {"x": x, "p": theta, "u": control, "t": t, "ode": ode}
-        outputs = ca.vertcat(current, angle, omega, rail_m, v[n - 1], drive_force, rod_m)
+        machine_force = drive_force + lock.force_n  # everything the point machine applies at the drive point
+        outputs = ca.vertcat(current, angle, omega, rail_m, v[n - 1], acceleration[n - 1], machine_force, rod_m)
         self._outputs = ca.Function("outputs", [x, theta], [outputs])
-        rail_energy = self.beam.energy(u, v)
+        rail_energy = self.beam.energy(u, v) + lock.energy_j
         drive_energy = (adjuster_energy(p.adjuster, rod_m, adjuster_m, faults["left_bolt_offset"], faults["right_bolt_offset"])
                         + 0.5 * p.motor.rotor_inertia_kg_m2 * omega**2 + 0.5 * p.motor.inductance_h * current**2)
         self.energy = ca.Function("energy", [x, theta], [rail_energy, rail_energy + drive_energy],
@@ -113,9 +121,13 @@ class Plant:
     # -- simulation --------------------------------------------------------------------------
     def rest_state(self, rail_position_m: float, motor_angle_rad: float = 0.0) -> np.ndarray:
         """Rails at rest in their static shape with the drive point at `rail_position_m`."""
+        p = self.params
         x = np.zeros(self.n_states)
         x[: self.nodes] = self.beam.rest_shape(rail_position_m)
         x[self.index["angle_rad"]] = motor_angle_rad
+        rod_m = float(np.asarray(self._outputs(x, fault_vector())).ravel()[SIGNALS.index("rod_position_m")])
+        x[[self.index["hook_left"], self.index["hook_right"]]] = latched_hooks(
+            p.lock, p.drive, p.rail.left_stock_m, p.rail.right_stock_m, rail_position_m, rod_m)
         return x
 
     def run(self, state: np.ndarray, duration_s: float, rate_hz: float, faults: dict[str, float] | None = None,
@@ -157,7 +169,7 @@ class Plant:
     def describe(self) -> dict:
         """Model statistics in the spirit of the paper's Table 1."""
         p = self.params
-        scalars = sum(len(vars(part)) for part in (p.motor, p.controller, p.drive, p.adjuster, p.rail, p.obstacle))
+        scalars = sum(len(vars(part)) for part in (p.motor, p.controller, p.drive, p.adjuster, p.lock, p.rail, p.obstacle))
         per_node = 4 * self.nodes  # mass, chair normal load, bearing share, static shape
         contact = 2 * len(self.beam.contact_nodes)  # stock-rail gaps on each side
         return {

@@ -4,7 +4,7 @@ The two tongue rails, tied by stretcher bars, move as one Euler-Bernoulli beam
 clamped at the heel and pushed at the toe (the drive point). It is discretised
 as a chain of lumped masses joined by rotational bending springs and dampers
 (the paper's "chain of alternating bodies and joints"); every node sits on a
-slide chair with Coulomb friction, and the toe region closes against
+slide chair with roller friction, and the toe region closes against
 the stock rail at each end of travel. Node coordinate `u` is the lateral
 displacement from the unstressed shape; the travel coordinate of the drive
 point is `neutral_m + u[-1]`.
@@ -31,13 +31,16 @@ class RailParams:
     length_m: float = 10.0
     mass_per_length_kg_m: float = 2 * 60.2
     bending_stiffness_n_m2: float = 2 * 210e9 * 5.12e-6
+    # Flexible heel: the blades are machined thin near the heel so that little elastic
+    # force opposes throwing them (and holding them at either end).
+    heel_flex_length_m: float = 2.0
+    heel_flex_factor: float = 0.08
     structural_damping_s: float = 1.0e-3  # stiffness-proportional (Rayleigh) damping
     drive_mass_kg: float = 30.0  # adjuster, stretcher bar and locking parts at the toe
-    # Greased slide chairs: their friction at the drive point exceeds the beam's spring
-    # force at either end of travel, so the rails stay put until a bolt pushes them.
-    chair_friction_coefficient: float = 0.2
+    # Slide chairs with rollers: a little Coulomb friction, mostly viscous rolling losses.
+    chair_friction_coefficient: float = 0.02
     chair_friction_speed_m_s: float = 0.001
-    chair_viscous_n_s_m: float = 2.0
+    chair_viscous_n_s_m: float = 300.0
     neutral_m: float = 1.10  # unstressed position of the drive point
     left_stock_m: float = 1.00
     right_stock_m: float = 1.20
@@ -59,8 +62,15 @@ class RailBeam:
         self.contact_nodes = np.flatnonzero(self.arc_m >= (1.0 - params.contact_region_fraction) * params.length_m)
 
     @cached_property
+    def joint_bending_stiffness(self) -> np.ndarray:
+        """EI at every joint (joint j sits at node j, joint 0 at the clamped heel)."""
+        p = self.params
+        arc = self.spacing_m * np.arange(p.nodes)
+        return np.where(arc < p.heel_flex_length_m, p.heel_flex_factor, 1.0) * p.bending_stiffness_n_m2
+
+    @cached_property
     def stiffness(self) -> sp.csc_matrix:
-        """K = EI * ds * D^T D, D the curvature at every joint (heel clamped, toe free)."""
+        """K = ds * D^T diag(EI) D, D the curvature at every joint (heel clamped, toe free)."""
         n, ds = self.params.nodes, self.spacing_m
         rows, cols, vals = [], [], []
         for joint in range(n):  # joint j sits at node j; node 0 is the clamped heel
@@ -70,7 +80,7 @@ class RailBeam:
                     cols.append(node - 1)
                     vals.append(weight / ds**2)
         curvature = sp.csr_matrix((vals, (rows, cols)), shape=(n, n))
-        stiffness = sp.csc_matrix(self.params.bending_stiffness_n_m2 * ds * (curvature.T @ curvature))
+        stiffness = sp.csc_matrix(ds * (curvature.T @ sp.diags(self.joint_bending_stiffness) @ curvature))
         stiffness.sort_indices()
         return stiffness
 
@@ -90,7 +100,7 @@ class RailBeam:
 
     @property
     def tip_stiffness_n_m(self) -> float:
-        """Static stiffness seen at the drive point (3EI/L^3 for the continuous beam)."""
+        """Static stiffness seen at the drive point (3EI/L^3 for a uniform continuous beam)."""
         load = np.zeros(self.params.nodes)
         load[-1] = 1.0
         return 1.0 / sp.linalg.spsolve(self.stiffness, load)[-1]

@@ -1,0 +1,154 @@
+"""Reduced hybrid switch model: the plant's motor, controller, drive and adjuster, one learned rail.
+
+Written as CasADi's system-identification example does it: the ODE once as a
+symbolic Function, a fixed-step RK4 step per sample, rolled over a throw with
+`mapaccum` and expanded to SX. Every non-smooth law of the plant (free play,
+stock-rail contact, voltage limit) is replaced by a smooth one, so outputs
+have exact derivatives with respect to the fault parameters.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from functools import lru_cache
+
+import casadi as ca
+import numpy as np
+
+from models.adjuster import adjuster_force, smooth_contact
+from models.drive import adjuster_on_rod, rod_kinematics
+from models.faults import FAULT_ORDER, fault_vector, obstacle_profile, unpack
+from models.lock import latched_hooks, lock_terms
+from models.motor import controller, motor_derivatives
+from models.plant import PlantParams
+from models.rail_models import Representation
+from models.reference import Reference
+from models.smooth import smooth_clip
+
+STATES = ("angle_rad", "velocity_rad_s", "integral_v", "current_a", "rail_position_m", "rail_velocity_m_s",
+          "hook_left", "hook_right")
+OUTPUTS = ("current_a", "angle_rad", "velocity_rad_s", "rail_position_m", "rail_velocity_m_s", "drive_force_n")
+
+
+@dataclass(frozen=True)
+class ReducedParams:
+    """Integration and smoothing settings of the reduced model."""
+
+    plant: PlantParams = field(default_factory=PlantParams)
+    substeps: int = 2  # RK4 steps per sample
+    # Contacts softer than the plant's, so that RK4 at 10 ms stays stable with a light rail mass.
+    stock_stiffness_n_m: float = 1.0e6  # end stops at 1.00 m and 1.20 m, seen at the drive point
+    stock_damping_s_m: float = 5.0
+    bolt_stiffness_n_m: float = 2.5e5  # along the rod (1e6 N/m at the blades through the lever)
+    lock_stiffness_n_m: float = 1.0e6
+    contact_width_m: float = 2e-4
+    voltage_corner_v: float = 1.0
+
+
+def stock_rail_force(params: ReducedParams, x, v):
+    """Smooth end stops where the blades meet the left and right stock rails."""
+    rail = params.plant.rail
+    left = smooth_contact(rail.left_stock_m - x, -v, params.stock_stiffness_n_m, params.stock_damping_s_m,
+                          params.contact_width_m)
+    right = smooth_contact(x - rail.right_stock_m, v, params.stock_stiffness_n_m, params.stock_damping_s_m,
+                           params.contact_width_m)
+    return left - right
+
+
+class ReducedSwitch:
+    """Reduced switch with one rail representation; Functions built once, reused for every throw."""
+
+    def __init__(self, representation: Representation, weights: np.ndarray, params: ReducedParams = ReducedParams(),
+                 rate_hz: float = 50.0):
+        self.representation = representation
+        self.weights = np.asarray(weights, dtype=float)
+        self.params = params
+        self.rate_hz = rate_hz
+        self._adjuster = replace(params.plant.adjuster, contact_stiffness_n_m=params.bolt_stiffness_n_m)
+        self._lock = replace(params.plant.lock, stiffness_n_m=params.lock_stiffness_n_m)
+        self.step = self._build_step()
+
+    def _ode(self, s, omega_ref, theta, w):
+        p = self.params.plant
+        angle, omega, integral, current, x, v = (s[i] for i in range(6))
+        hooks = s[6:8]
+        faults = unpack(theta)
+        rod_m, rod_velocity, lever_m = rod_kinematics(p.drive, angle, omega)
+        adjuster_m, adjuster_velocity = adjuster_on_rod(p.drive, x, v)
+
+        def contact(pen, rate, k, damping):
+            return smooth_contact(pen, rate, k, damping, self.params.contact_width_m)
+
+        rod_force = adjuster_force(self._adjuster, rod_m, rod_velocity, adjuster_m, adjuster_velocity,
+                                   faults["left_bolt_offset"], faults["right_bolt_offset"], contact)
+        drive_force = p.drive.linkage_ratio * rod_force
+        lock = lock_terms(self._lock, p.drive, self._adjuster, p.rail.left_stock_m, p.rail.right_stock_m, x, rod_m, hooks,
+                          faults["left_bolt_offset"], faults["right_bolt_offset"], self.params.contact_width_m)
+        external = (drive_force + lock.force_n + stock_rail_force(self.params, x, v) - faults["bearing_friction"] * v
+                    - faults["obstacle_friction"] * obstacle_profile(p.obstacle, x, faults["obstacle_position"]) * v)
+        acceleration = self.representation.acceleration(x, v, external, w)
+
+        def clip(value, limit):
+            return smooth_clip(value, limit, self.params.voltage_corner_v)
+
+        voltage, d_integral = controller(p.controller, p.motor, omega_ref, omega, integral, 1.0, clip)
+        d_current, d_omega = motor_derivatives(p.motor, voltage, current, omega, rod_force * lever_m)
+        derivative = ca.vertcat(omega, d_omega, d_integral, d_current, v, acceleration, lock.d_hooks)
+        return derivative, ca.vertcat(current, angle, omega, x, v, drive_force + lock.force_n)
+
+    def _build_step(self) -> ca.Function:
+        """One sample: `substeps` RK4 steps with the reference linear over the sample."""
+        s = ca.SX.sym("s", len(STATES))
+        ref = ca.SX.sym("ref", 2)  # reference at the sample interval's start and end
+        theta = ca.SX.sym("fault", len(FAULT_ORDER))
+        w = ca.SX.sym("w", self.representation.size)
+        tau = ca.SX.sym("tau")  # fraction of the sample interval
+        f_expr, _ = self._ode(s, ref[0] + (ref[1] - ref[0]) * tau, theta, w)
+        f = ca.Function("f", [s, tau, theta, w, ref], [f_expr])
+        h = 1.0 / (self.rate_hz * self.params.substeps)
+        n = self.params.substeps
+        state = s
+        for k in range(n):
+            t0 = k / n
+            k1 = f(state, t0, theta, w, ref)
+            k2 = f(state + h / 2 * k1, t0 + 0.5 / n, theta, w, ref)
+            k3 = f(state + h / 2 * k2, t0 + 0.5 / n, theta, w, ref)
+            k4 = f(state + h * k3, t0 + 1.0 / n, theta, w, ref)
+            state = state + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        _, output = self._ode(state, ref[1], theta, w)
+        return ca.Function("sample_step", [s, ref, theta, w], [state, output],
+                           ["s", "ref", "fault", "w"], ["s_next", "y"]).expand()
+
+    @lru_cache(maxsize=8)
+    def rollout(self, samples: int) -> ca.Function:
+        """(s0, refs 2xN, fault, w) -> outputs 6xN at the N sample times after the start."""
+        acc = self.step.mapaccum("rollout_acc", samples)
+        s0 = ca.MX.sym("s0", len(STATES))
+        refs = ca.MX.sym("refs", 2, samples)
+        theta = ca.MX.sym("fault", len(FAULT_ORDER))
+        w = ca.MX.sym("w", self.representation.size)
+        states, outputs = acc(s0, refs, ca.repmat(theta, 1, samples), ca.repmat(w, 1, samples))
+        return ca.Function("rollout", [s0, refs, theta, w], [outputs, states[:, -1]],
+                           ["s0", "refs", "fault", "w"], ["y", "s_end"])
+
+    def reference_columns(self, reference: Reference, samples: int) -> np.ndarray:
+        """Reference at each sample interval's start and end."""
+        t = np.arange(samples + 1) / self.rate_hz
+        values = reference(t)
+        return np.vstack([values[:-1], values[1:]])
+
+    def initial_state(self, rail_position_m: float, angle_rad: float, velocity_rad_s: float = 0.0,
+                      current_a: float = 0.0) -> np.ndarray:
+        """Start of a throw: controller integrator empty, rails at rest, hooks latched where they close."""
+        p = self.params.plant
+        rod_m = p.drive.rod_left_m + p.drive.crank_radius_m * (1.0 - np.cos(angle_rad / p.drive.gear_ratio))
+        hooks = latched_hooks(p.lock, p.drive, p.rail.left_stock_m, p.rail.right_stock_m, rail_position_m, rod_m)
+        return np.array([angle_rad, velocity_rad_s, 0.0, current_a, rail_position_m, 0.0, *hooks])
+
+    def simulate(self, s0: np.ndarray, reference: Reference, samples: int,
+                 faults: dict[str, float] | None = None, weights: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """Outputs at the `samples` sample times after s0 (numbers in, numbers out)."""
+        y, s_end = self.rollout(samples)(s0, self.reference_columns(reference, samples), fault_vector(faults),
+                                         self.weights if weights is None else weights)
+        out = dict(zip(OUTPUTS, np.asarray(y)))
+        out["final_state"] = np.asarray(s_end).ravel()
+        return out
