@@ -17,7 +17,7 @@ import casadi as ca
 
 from models.adjuster import AdjusterParams
 from models.drive import DriveParams
-from models.smooth import softplus
+from models.smooth import smooth_step, softplus
 
 
 @dataclass(frozen=True)
@@ -27,11 +27,6 @@ class LockParams:
     end_zone_m: float = 0.004  # rod travel from a dead centre within which the hook latches
     latch_rate_1_s: float = 200.0
     switch_width_m: float = 2e-4  # width of the smooth on/off conditions
-
-
-def _step(z, width_m):
-    """Smooth 0-to-1 switch: 1 for z >> width, 0 for z << -width."""
-    return 0.5 * (1.0 + ca.tanh(z / width_m))
 
 
 @dataclass(frozen=True)
@@ -51,12 +46,12 @@ def lock_terms(lock: LockParams, drive: DriveParams, adjuster: AdjusterParams, l
     right_face = rod_m + (adjuster.free_play_m + right_bolt_offset)
     left_out = rail_m - (left_stock_m + lock.slack_m)  # > 0: a blade closed at the left moves away
     right_out = (right_stock_m - lock.slack_m) - rail_m
-    at_left_end = _step(drive.rod_left_m + lock.end_zone_m - rod_m, w)
-    at_right_end = _step(rod_m - (drive.rod_left_m + drive.stroke_m - lock.end_zone_m), w)
-    released_left = _step(left_face - drive.linkage_ratio * left_stock_m, w)
-    released_right = _step(drive.linkage_ratio * right_stock_m - right_face, w)
-    d_left = lock.latch_rate_1_s * ((1 - hook_left) * _step(-left_out, w) * at_left_end - hook_left * released_left)
-    d_right = lock.latch_rate_1_s * ((1 - hook_right) * _step(-right_out, w) * at_right_end - hook_right * released_right)
+    at_left_end = smooth_step(drive.rod_left_m + lock.end_zone_m - rod_m, w)
+    at_right_end = smooth_step(rod_m - (drive.rod_left_m + drive.stroke_m - lock.end_zone_m), w)
+    released_left = smooth_step(left_face - drive.linkage_ratio * left_stock_m, w)
+    released_right = smooth_step(drive.linkage_ratio * right_stock_m - right_face, w)
+    d_left = lock.latch_rate_1_s * ((1 - hook_left) * smooth_step(-left_out, w) * at_left_end - hook_left * released_left)
+    d_right = lock.latch_rate_1_s * ((1 - hook_right) * smooth_step(-right_out, w) * at_right_end - hook_right * released_right)
     if depth_width_m is None:
         left_depth, right_depth = ca.fmax(left_out, 0.0), ca.fmax(right_out, 0.0)
     else:

@@ -8,7 +8,10 @@ force F at the adjuster-rail connection, position x and velocity v there.
 - `nn`: spring c(x)^2 (x - xfix) and damper d(x, v)^2 v, with c and d one-hidden-layer
   tanh networks, linear mass (Proposition 2: stiffness depending on position only
   keeps the spring conservative, so the component is dissipative).
-- `causal`: F = g(x, v, a), one hidden tanh layer; acceleration found by Newton.
+- `causal`: F = g(x, v, a): a one-hidden-layer tanh network plus the fixed inertia of
+  the toe (CAUSAL_MASS_KG * a), which keeps the map invertible in a; the acceleration
+  is found by a Newton step from a = 0 with its slope floored at half that mass (the
+  learned dependence on a is weak, so one step is accurate).
 
 Parameters live in physical units in plain dicts of numpy arrays; `flatten` and
 `unflatten` map them to the vector the optimisers and CasADi functions see.
@@ -20,12 +23,15 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from models.smooth import softplus
+
 # Typical magnitudes used to scale network inputs and outputs to order one.
 POSITION_SCALE_M = 0.1
 VELOCITY_SCALE_M_S = 0.1
 ACCELERATION_SCALE_M_S2 = 1.0
 FORCE_SCALE_N = 1000.0
 GAIN_SCALE = 100.0  # c and d networks output sqrt-stiffness / sqrt-damping over this
+CAUSAL_MASS_KG = 150.0  # adjuster, stretcher bars and toe: the least inertia at the drive point
 
 
 def _mlp(inputs, w0, b0, w1, b1):
@@ -71,7 +77,7 @@ class Representation:
         if self.name == "nn":
             return p["m"] * a + self.spring(x, p) + self.damping(x, v, p) * v
         u = ca.vertcat((x - 1.10) / POSITION_SCALE_M, v / VELOCITY_SCALE_M_S, a / ACCELERATION_SCALE_M_S2)
-        return FORCE_SCALE_N * _mlp(u, p["w0"], p["b0"], p["w1"], p["b1"])
+        return CAUSAL_MASS_KG * a + FORCE_SCALE_N * _mlp(u, p["w0"], p["b0"], p["w1"], p["b1"])
 
     def spring(self, x, p):
         delta = x - p["xfix"]
@@ -86,19 +92,41 @@ class Representation:
                               p["dw0"], p["db0"], p["dw1"], p["db1"])
         return d**2
 
-    def acceleration(self, x, v, force, w, newton_steps: int = 3):
+    def acceleration(self, x, v, force, w, newton_steps: int = 1):
         """Acceleration under port force `force`: explicit for acausal forms, Newton for the causal map."""
         if self.acausal:
             p = self.unflatten(w)
             return (force - (self.force(x, v, 0.0, w))) / p["m"]
         a_sym = ca.SX.sym("a")
         residual = self.force(x, v, a_sym, w) - force
-        slope = ca.jacobian(residual, a_sym)
+        slope = softplus(ca.jacobian(residual, a_sym) - CAUSAL_MASS_KG / 2, CAUSAL_MASS_KG / 10) + CAUSAL_MASS_KG / 2
         a = ca.SX(0.0)
         for _ in range(newton_steps):
             r, s = ca.substitute([residual, slope], [a_sym], [a])
             a = a - r / s
         return a
+
+    def linearisation(self, x, v, w):
+        """Mass, stiffness and damping of a dissipative linear stand-in at (x, v), all non-negative.
+
+        Secant coefficients of the acausal forms (c(x)^2, d(x, v)^2) and the clipped
+        slopes of the causal map: used only as the W matrix of the integrator.
+        """
+        p = self.unflatten(w)
+        if self.name == "poly":
+            delta = x - p["xfix"]
+            return (p["m"], p["c0"] + 3 * p["c1"] * delta**2 + 5 * p["c2"] * delta**4,
+                    p["d0"] + 3 * p["d1"] * v**2 + 5 * p["d2"] * v**4)
+        if self.name == "nn":
+            delta = x - p["xfix"]
+            c = GAIN_SCALE * _mlp(delta / POSITION_SCALE_M, p["cw0"], p["cb0"], p["cw1"], p["cb1"])
+            return p["m"], c**2, self.damping(x, v, p)
+        a_sym, x_sym, v_sym = ca.SX.sym("a"), ca.SX.sym("x"), ca.SX.sym("v")
+        g = self.force(x_sym, v_sym, a_sym, w)
+        slopes = ca.substitute([ca.jacobian(g, a_sym), ca.jacobian(g, x_sym), ca.jacobian(g, v_sym)],
+                               [a_sym, x_sym, v_sym], [ca.SX(0.0), x, v])
+        mass = softplus(slopes[0] - CAUSAL_MASS_KG / 2, CAUSAL_MASS_KG / 10) + CAUSAL_MASS_KG / 2
+        return mass, ca.fmax(slopes[1], 0.0), ca.fmax(slopes[2], 0.0)
 
     def energy(self, x, v, w, quadrature_points: int = 64):
         """Stored energy: kinetic plus the spring's potential (acausal forms only)."""
@@ -133,7 +161,7 @@ REPRESENTATIONS: dict[str, Representation] = {
          f"{NN_HIDDEN} tanh units"), True),
     "causal": Representation(
         "causal", {"w0": (CAUSAL_HIDDEN, 3), "b0": (CAUSAL_HIDDEN, 1), "w1": (1, CAUSAL_HIDDEN), "b1": ()},
-        (f"F = {FORCE_SCALE_N:g} * (W1 tanh(W0 [(x-1.1)/{POSITION_SCALE_M:g}, v/{VELOCITY_SCALE_M_S:g}, "
-         f"a/{ACCELERATION_SCALE_M_S2:g}] + b0) + b1), {CAUSAL_HIDDEN} tanh units",
+        (f"F = {CAUSAL_MASS_KG:g}*a + {FORCE_SCALE_N:g} * (W1 tanh(W0 [(x-1.1)/{POSITION_SCALE_M:g}, "
+         f"v/{VELOCITY_SCALE_M_S:g}, a/{ACCELERATION_SCALE_M_S2:g}] + b0) + b1), {CAUSAL_HIDDEN} tanh units",
          "a solved from F by Newton's method"), False),
 }

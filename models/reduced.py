@@ -1,8 +1,8 @@
 """Reduced hybrid switch model: the plant's motor, controller, drive and adjuster, one learned rail.
 
-Written as CasADi's system-identification example does it: the ODE once as a
-symbolic Function, a fixed-step RK4 step per sample, rolled over a throw with
-`mapaccum` and expanded to SX. Every non-smooth law of the plant (free play,
+Written as CasADi's system-identification example does it: the ODE once in
+SX, a fixed-step integrator step per sample (ROS2, stiff-stable, so obstacle
+friction and contacts of any size are safe), rolled over a throw with `mapaccum`. Every non-smooth law of the plant (free play,
 stock-rail contact, voltage limit) is replaced by a smooth one, so outputs
 have exact derivatives with respect to the fault parameters.
 """
@@ -16,6 +16,7 @@ import numpy as np
 
 from models.adjuster import adjuster_force, smooth_contact
 from models.drive import adjuster_on_rod, rod_kinematics
+from models.integrators import ros2
 from models.faults import FAULT_ORDER, fault_vector, obstacle_profile, unpack
 from models.lock import latched_hooks, lock_terms
 from models.motor import controller, motor_derivatives
@@ -34,12 +35,13 @@ class ReducedParams:
     """Integration and smoothing settings of the reduced model."""
 
     plant: PlantParams = field(default_factory=PlantParams)
-    substeps: int = 2  # RK4 steps per sample
-    # Contacts softer than the plant's, so that RK4 at 10 ms stays stable with a light rail mass.
+    substeps: int = 1  # ROS2 steps per sample
+    # Contacts softer than the plant's: the reduced model needs their effect, not their stiffness.
     stock_stiffness_n_m: float = 1.0e6  # end stops at 1.00 m and 1.20 m, seen at the drive point
-    stock_damping_s_m: float = 5.0
+    stock_damping_s_m: float = 1.0
     bolt_stiffness_n_m: float = 2.5e5  # along the rod (1e6 N/m at the blades through the lever)
     lock_stiffness_n_m: float = 1.0e6
+    latch_rate_1_s: float = 50.0
     contact_width_m: float = 2e-4
     voltage_corner_v: float = 1.0
 
@@ -54,20 +56,37 @@ def stock_rail_force(params: ReducedParams, x, v):
     return left - right
 
 
+def jit_compiled(function: ca.Function) -> tuple[ca.Function, bool]:
+    """The same Function compiled to machine code by CasADi's JIT (needs a C compiler), else itself."""
+    try:
+        symbols = function.mx_in()
+        compiled = ca.Function(function.name() + "_jit", symbols, function.call(symbols),
+                               function.name_in(), function.name_out(),
+                               {"jit": True, "compiler": "shell", "jit_options": {"flags": ["-O2"], "verbose": False}})
+        compiled(*[np.zeros(function.size_in(i)) for i in range(function.n_in())])
+        return compiled, True
+    except RuntimeError:
+        return function, False
+
+
 class ReducedSwitch:
     """Reduced switch with one rail representation; Functions built once, reused for every throw."""
 
     def __init__(self, representation: Representation, weights: np.ndarray, params: ReducedParams = ReducedParams(),
-                 rate_hz: float = 50.0):
+                 rate_hz: float = 50.0, compiled: bool = False):
         self.representation = representation
         self.weights = np.asarray(weights, dtype=float)
         self.params = params
         self.rate_hz = rate_hz
-        self._adjuster = replace(params.plant.adjuster, contact_stiffness_n_m=params.bolt_stiffness_n_m)
-        self._lock = replace(params.plant.lock, stiffness_n_m=params.lock_stiffness_n_m)
+        self._adjuster = replace(params.plant.adjuster, contact_stiffness_n_m=params.bolt_stiffness_n_m,
+                                 contact_damping_s_m=params.stock_damping_s_m)
+        self._lock = replace(params.plant.lock, stiffness_n_m=params.lock_stiffness_n_m,
+                             latch_rate_1_s=params.latch_rate_1_s)
         self.step = self._build_step()
+        self.compiled = compiled  # rollouts compiled to machine code when a C compiler is there
 
-    def _ode(self, s, omega_ref, theta, w):
+    def _ode(self, s, omega_ref, theta, w, frozen_rail=None):
+        """Derivative and outputs; with `frozen_rail` (a state), the rail is its linear stand-in there."""
         p = self.params.plant
         angle, omega, integral, current, x, v = (s[i] for i in range(6))
         hooks = s[6:8]
@@ -85,7 +104,13 @@ class ReducedSwitch:
                           faults["left_bolt_offset"], faults["right_bolt_offset"], self.params.contact_width_m)
         external = (drive_force + lock.force_n + stock_rail_force(self.params, x, v) - faults["bearing_friction"] * v
                     - faults["obstacle_friction"] * obstacle_profile(p.obstacle, x, faults["obstacle_position"]) * v)
-        acceleration = self.representation.acceleration(x, v, external, w)
+        if frozen_rail is None:
+            acceleration = self.representation.acceleration(x, v, external, w)
+        else:
+            x0, v0 = frozen_rail[4], frozen_rail[5]
+            mass, stiffness, damping = self.representation.linearisation(x0, v0, w)
+            base = self.representation.acceleration(x0, v0, 0.0, w)  # constant: no derivative reaches W
+            acceleration = base + (external - stiffness * (x - x0) - damping * (v - v0)) / mass
 
         def clip(value, limit):
             return smooth_clip(value, limit, self.params.voltage_corner_v)
@@ -96,31 +121,34 @@ class ReducedSwitch:
         return derivative, ca.vertcat(current, angle, omega, x, v, drive_force + lock.force_n)
 
     def _build_step(self) -> ca.Function:
-        """One sample: `substeps` RK4 steps with the reference linear over the sample."""
+        """One sample: `substeps` ROS2 steps with the reference linear over the sample."""
         s = ca.SX.sym("s", len(STATES))
         ref = ca.SX.sym("ref", 2)  # reference at the sample interval's start and end
         theta = ca.SX.sym("fault", len(FAULT_ORDER))
         w = ca.SX.sym("w", self.representation.size)
-        tau = ca.SX.sym("tau")  # fraction of the sample interval
-        f_expr, _ = self._ode(s, ref[0] + (ref[1] - ref[0]) * tau, theta, w)
-        f = ca.Function("f", [s, tau, theta, w, ref], [f_expr])
+
+        def rhs(state, fraction):
+            return self._ode(state, ref[0] + (ref[1] - ref[0]) * fraction, theta, w)[0]
+
+        def w_rhs(state, fraction, point):
+            return self._ode(state, ref[0] + (ref[1] - ref[0]) * fraction, theta, w, frozen_rail=point)[0]
+
         h = 1.0 / (self.rate_hz * self.params.substeps)
-        n = self.params.substeps
-        state = s
-        for k in range(n):
-            t0 = k / n
-            k1 = f(state, t0, theta, w, ref)
-            k2 = f(state + h / 2 * k1, t0 + 0.5 / n, theta, w, ref)
-            k3 = f(state + h / 2 * k2, t0 + 0.5 / n, theta, w, ref)
-            k4 = f(state + h * k3, t0 + 1.0 / n, theta, w, ref)
-            state = state + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        state = ros2(rhs, s, h, self.params.substeps, w_rhs)
         _, output = self._ode(state, ref[1], theta, w)
+        state, output = ca.cse([state, output])
         return ca.Function("sample_step", [s, ref, theta, w], [state, output],
-                           ["s", "ref", "fault", "w"], ["s_next", "y"]).expand()
+                           ["s", "ref", "fault", "w"], ["s_next", "y"])
 
     @lru_cache(maxsize=8)
     def rollout(self, samples: int) -> ca.Function:
         """(s0, refs 2xN, fault, w) -> outputs 6xN at the N sample times after the start."""
+        function = self._rollout(samples)
+        if self.compiled:
+            function, self.compiled = jit_compiled(function)
+        return function
+
+    def _rollout(self, samples: int) -> ca.Function:
         acc = self.step.mapaccum("rollout_acc", samples)
         s0 = ca.MX.sym("s0", len(STATES))
         refs = ca.MX.sym("refs", 2, samples)

@@ -5,7 +5,7 @@ references that push the blades back and forth; we record force, position,
 velocity and acceleration at the adjuster-rail connection every 0.02 s.
 
 Fits use CasADi's automatic differentiation and a bounded Levenberg-Marquardt:
-- acausal forms: multiple shooting, each 1 s segment simulated (RK4) from its
+- acausal forms: multiple shooting, each 1 s segment simulated (ROS2) from its
   measured start under the measured force, positions and velocities compared;
 - causal map: regression of F on (x, v, a), then fine-tuned inside the full
   reduced switch model against the plant's nominal throws.
@@ -18,8 +18,10 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from models.faults import fault_vector
+from models.integrators import ros2
 from models.plant import Plant
-from models.rail_models import Representation
+from models.rail_models import FORCE_SCALE_N, GAIN_SCALE, Representation
 from models.reduced import ReducedParams, stock_rail_force
 from models.reference import Reference
 
@@ -27,6 +29,9 @@ RATE_HZ = 50.0
 SEGMENT_SAMPLES = 50
 POSITION_RESIDUAL_M = 0.002
 VELOCITY_RESIDUAL_M_S = 0.01
+CURRENT_RESIDUAL_A = 0.1
+TRAIN_SEEDS = (1, 2, 3)  # 100 s random-push series used for training
+VALIDATION_SEEDS = tuple(range(1001, 1026))  # 25 series never used for training
 
 
 @dataclass(frozen=True)
@@ -61,6 +66,27 @@ def rail_experiment(plant: Plant, seed: int, duration_s: float = 100.0) -> RailD
     trajectory = plant.run(plant.start_throw(state), duration_s, RATE_HZ, reference=reference)
     return RailData(trajectory["drive_force_n"], trajectory["rail_position_m"], trajectory["rail_velocity_m_s"],
                     trajectory["rail_acceleration_m_s2"])
+
+
+def nominal_throw_data(plant: Plant, throws: int = 2) -> RailData:
+    """The connection's signals over nominal throws (left to right first), as in normal service."""
+    from models.reference import DIRECTIONS, throw_reference
+
+    state = plant.run(plant.rest_state(1.0), 1.0, RATE_HZ).states[:, -1]
+    parts = []
+    for k in range(throws):
+        trajectory = plant.run(plant.start_throw(state), 7.0, RATE_HZ,
+                               reference=throw_reference(DIRECTIONS[k % 2], plant.params.drive))
+        state = trajectory.states[:, -1]
+        parts.append(trajectory)
+    return RailData(*(np.concatenate([t[name] for t in parts]) for name in
+                      ("drive_force_n", "rail_position_m", "rail_velocity_m_s", "rail_acceleration_m_s2")))
+
+
+def training_data(plant: Plant, series_seeds=None) -> list[RailData]:
+    """Random-push series plus nominal throws."""
+    seeds = TRAIN_SEEDS if series_seeds is None else series_seeds
+    return [rail_experiment(plant, s) for s in seeds] + [nominal_throw_data(plant)]
 
 
 # -- a bounded Levenberg-Marquardt on CasADi residuals --------------------------------------------
@@ -109,15 +135,19 @@ def levenberg_marquardt(residual_jacobian: Callable[[np.ndarray], tuple[np.ndarr
 
 # -- parametrisations: z (unconstrained, order one) <-> physical weights ---------------------------
 POLY_SCALES = {"m": 100.0, "c0": 1e3, "c1": 1e5, "c2": 1e7, "d0": 1e3, "d1": 1e4, "d2": 1e5}
+# The blades' effective mass at the drive point is at least that of the adjuster, stretcher
+# bars and toe.
+MIN_MASS_KG = 150.0
 
 
 def weights_from_z(representation: Representation, z):
-    """Physical weights; non-negative poly coefficients and masses as scale * z^2."""
+    """Physical weights; non-negative poly coefficients as scale * z^2, masses above MIN_MASS_KG."""
     if representation.name == "poly":
-        parts = [POLY_SCALES[k] * z[i] ** 2 for i, k in enumerate(POLY_SCALES)] + [1.10 + 0.1 * z[7]]
+        parts = [MIN_MASS_KG + POLY_SCALES["m"] * z[0] ** 2]
+        parts += [POLY_SCALES[k] * z[i] ** 2 for i, k in enumerate(POLY_SCALES) if k != "m"] + [1.10 + 0.1 * z[7]]
         return ca.vertcat(*parts) if isinstance(z, (ca.SX, ca.MX)) else np.array(parts, dtype=float)
     if representation.name == "nn":
-        mass, xfix = 100.0 * z[0] ** 2, 1.10 + 0.1 * z[1]
+        mass, xfix = MIN_MASS_KG + 100.0 * z[0] ** 2, 1.10 + 0.1 * z[1]
         rest = z[2:]
         return ca.vertcat(mass, xfix, rest) if isinstance(z, (ca.SX, ca.MX)) else np.concatenate([[mass, xfix], rest])
     return z
@@ -125,36 +155,34 @@ def weights_from_z(representation: Representation, z):
 
 def z_from_weights(representation: Representation, w: np.ndarray) -> np.ndarray:
     w = np.asarray(w, dtype=float)
+    mass_z = np.sqrt(max(w[0] - MIN_MASS_KG, 0.0) / 100.0)
     if representation.name == "poly":
-        return np.array([np.sqrt(w[i] / POLY_SCALES[k]) for i, k in enumerate(POLY_SCALES)] + [(w[7] - 1.10) / 0.1])
+        return np.array([mass_z] + [np.sqrt(w[i] / POLY_SCALES[k]) for i, k in enumerate(POLY_SCALES) if k != "m"]
+                        + [(w[7] - 1.10) / 0.1])
     if representation.name == "nn":
-        return np.concatenate([[np.sqrt(w[0] / 100.0), (w[1] - 1.10) / 0.1], w[2:]])
+        return np.concatenate([[mass_z, (w[1] - 1.10) / 0.1], w[2:]])
     return w.copy()
 
 
 # -- acausal: multiple shooting on rail data --------------------------------------------------------
-def rail_step_function(representation: Representation, reduced: ReducedParams, substeps: int = 2) -> ca.Function:
-    """(x, v, F at sample start, F at sample end, w) -> (x, v) one sample later, RK4."""
+def rail_step_function(representation: Representation, reduced: ReducedParams) -> ca.Function:
+    """(x, v, F at sample start, F at sample end, w) -> (x, v) one sample later, as in the reduced switch."""
     s = ca.SX.sym("s", 2)
     force = ca.SX.sym("F", 2)
     w = ca.SX.sym("w", representation.size)
-    tau = ca.SX.sym("tau")
 
-    def ode(state, fraction):
-        x, v = state[0], state[1]
-        port = force[0] + (force[1] - force[0]) * fraction + stock_rail_force(reduced, x, v)
-        return ca.vertcat(v, representation.acceleration(x, v, port, w))
+    def port(state, fraction):
+        return force[0] + (force[1] - force[0]) * fraction + stock_rail_force(reduced, state[0], state[1])
 
-    h = 1.0 / (RATE_HZ * substeps)
-    state = s
-    for k in range(substeps):
-        t0 = k / substeps
-        k1 = ode(state, t0)
-        k2 = ode(state + h / 2 * k1, t0 + 0.5 / substeps)
-        k3 = ode(state + h / 2 * k2, t0 + 0.5 / substeps)
-        k4 = ode(state + h * k3, t0 + 1.0 / substeps)
-        state = state + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    return ca.Function("rail_step", [s, force, w], [state]).expand()
+    def rhs(state, fraction):
+        return ca.vertcat(state[1], representation.acceleration(state[0], state[1], port(state, fraction), w))
+
+    def w_rhs(state, fraction, point):  # the same dissipative stand-in W as in the reduced switch
+        mass, stiffness, damping = representation.linearisation(point[0], point[1], w)
+        return ca.vertcat(state[1], (port(state, fraction) - stiffness * state[0] - damping * state[1]) / mass)
+
+    state = ros2(rhs, s, 1.0 / (RATE_HZ * reduced.substeps), reduced.substeps, w_rhs)
+    return ca.Function("rail_step", [s, force, w], [state])
 
 
 def shooting_segments(data: list[RailData]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -170,8 +198,11 @@ def shooting_segments(data: list[RailData]) -> tuple[np.ndarray, np.ndarray, np.
     return np.array(starts).T, np.stack(forces, axis=-1), np.stack(measured, axis=-1)
 
 
+NN_RIDGE = 1e-3  # weight decay of the NN spring and damper: keeps them smooth (no learned steps)
+
+
 def acausal_residuals(representation: Representation, reduced: ReducedParams, data: list[RailData]) -> Callable:
-    """z -> (residuals, Jacobian) of the scaled shooting errors over all segments."""
+    """z -> (residuals, Jacobian) of the scaled shooting errors over all segments (plus weight decay for nn)."""
     starts, forces, measured = shooting_segments(data)
     segments = starts.shape[1]
     step = rail_step_function(representation, reduced)
@@ -189,6 +220,8 @@ def acausal_residuals(representation: Representation, reduced: ReducedParams, da
     target = measured.transpose(0, 2, 1).reshape(2, -1)
     scale = ca.DM([[1.0 / POSITION_RESIDUAL_M], [1.0 / VELOCITY_RESIDUAL_M_S]])
     residual = ca.vec((predicted - ca.DM(target)) * ca.repmat(scale, 1, predicted.shape[1]))
+    if representation.name == "nn":
+        residual = ca.vertcat(residual, np.sqrt(NN_RIDGE) * z[2:])  # networks only, not mass and xfix
     fn = ca.Function("acausal_residual", [z], [residual, ca.jacobian(residual, z)])
 
     def evaluate(zv: np.ndarray):
@@ -199,3 +232,164 @@ def acausal_residuals(representation: Representation, reduced: ReducedParams, da
 
 def _z_size(representation: Representation) -> int:
     return representation.size
+
+
+# -- initial weights ---------------------------------------------------------------------------
+def initial_weights(representation: Representation, seed: int) -> np.ndarray:
+    """A physically plausible, seeded start: 200 kg, 1 kN/m spring, 10 kN s/m damper at mid-travel."""
+    rng = np.random.default_rng(seed)
+    shapes = representation.shapes
+    if representation.name == "poly":
+        return representation.flatten(dict(m=200.0, c0=1e3, c1=1e3, c2=1e3, d0=1e4, d1=1e3, d2=1e3, xfix=1.10))
+    if representation.name == "nn":
+        params = {k: rng.normal(0.0, 1.0, shape) for k, shape in shapes.items()}
+        params.update(m=200.0, xfix=1.10, cb1=np.sqrt(1e3) / GAIN_SCALE, db1=np.sqrt(1e4) / GAIN_SCALE)
+        params.update(cw1=0.01 * params["cw1"], dw1=0.01 * params["dw1"])
+        return representation.flatten(params)
+    params = {k: rng.normal(0.0, 1.0 / np.sqrt(shape[-1] if len(shape) == 2 else 1), shape) for k, shape in shapes.items()}
+    params["w1"] = 0.1 * params["w1"]
+    params["w0"][:, 2] = 0.0  # acceleration enters through the toe's inertia until the data says otherwise
+    params["b1"] = np.zeros(())
+    return representation.flatten(params)
+
+
+# -- causal: regression, then fine-tuning inside the reduced switch model ---------------------------
+END_MARGIN_M = 0.002
+RIDGE = 1e-2  # weight decay of the causal regression
+# Random pushes hardly excite the blades' inertia, so the data cannot say how F depends on a;
+# a strong prior keeps the network's acceleration input small and the inertia that of the toe.
+ACCELERATION_INPUT_RIDGE = 1e3
+
+
+def causal_regression(representation: Representation, reduced: ReducedParams, data: list[RailData]) -> Callable:
+    """z -> (residuals, Jacobian) of g(x, v, a) minus the port force, in kN, plus a small ridge term.
+
+    The port force is what the representation balances inside the reduced switch:
+    the machine's force plus the reduced model's own end stops. One sample's
+    residual and gradient are differentiated in SX, then mapped numerically.
+    """
+    columns = np.vstack([np.concatenate([getattr(d, k) for d in data])
+                         for k in ("position_m", "velocity_m_s", "acceleration_m_s2", "force_n")])
+    rail = reduced.plant.rail
+    free = (columns[0] > rail.left_stock_m + END_MARGIN_M) & (columns[0] < rail.right_stock_m - END_MARGIN_M)
+    columns = columns[:, free]  # closed against a stock rail, the force is the end stop's, not the rail's
+    z = ca.SX.sym("z", representation.size)
+    x, v, a, f = (ca.SX.sym(k) for k in "xvaf")
+    r = (representation.force(x, v, a, z) - f - stock_rail_force(reduced, x, v)) / FORCE_SCALE_N
+    row = ca.Function("causal_row", [x, v, a, f, z], [r, ca.jacobian(r, z)])
+    rows = row.map(columns.shape[1], "serial")
+    decay = np.full(representation.size, RIDGE)
+    decay[_acceleration_input_weights(representation)] = ACCELERATION_INPUT_RIDGE
+    ridge = np.diag(np.sqrt(decay))
+
+    def evaluate(zv: np.ndarray):
+        r_all, j_all = rows(columns[0], columns[1], columns[2], columns[3], zv)
+        r_all = np.concatenate([np.asarray(r_all).ravel(), ridge @ zv])
+        return r_all, np.vstack([np.asarray(j_all).reshape(representation.size, -1, order="F").T, ridge])
+    return evaluate
+
+
+def _acceleration_input_weights(representation: Representation) -> np.ndarray:
+    """Flat indices of the first-layer weights that multiply the acceleration input."""
+    marker = np.zeros(representation.size)
+    probe = representation.unflatten(marker.copy())
+    probe["w0"][:, 2] = 1.0
+    return np.flatnonzero(representation.flatten(probe))
+
+
+@dataclass(frozen=True)
+class SwitchTarget:
+    """A stretch of plant data the full reduced switch model is fitted to."""
+
+    initial_state: np.ndarray  # reduced-model state at the start
+    reference: Reference
+    current_a: np.ndarray
+    rail_position_m: np.ndarray
+    rail_velocity_m_s: np.ndarray
+
+
+def switch_residuals(reduced, targets: list[SwitchTarget]) -> Callable:
+    """w -> (residuals, Jacobian) of current, rail position and velocity inside the reduced switch model."""
+    w = ca.MX.sym("w", reduced.representation.size)
+    blocks = []
+    for target in targets:
+        n = len(target.current_a)
+        y, _ = reduced.rollout(n)(target.initial_state, reduced.reference_columns(target.reference, n),
+                                 fault_vector(), w)
+        blocks += [(y[0, :].T - target.current_a) / CURRENT_RESIDUAL_A,
+                   (y[3, :].T - target.rail_position_m) / POSITION_RESIDUAL_M,
+                   (y[4, :].T - target.rail_velocity_m_s) / VELOCITY_RESIDUAL_M_S]
+    residual = ca.vertcat(*blocks)
+    fn = ca.Function("switch_residual", [w], [residual, ca.jacobian(residual, w)])
+
+    def evaluate(wv: np.ndarray):
+        r, j = fn(wv)
+        return np.asarray(r).ravel(), np.asarray(j)
+    return evaluate
+
+
+# -- the whole recipe per representation ----------------------------------------------------------
+@dataclass
+class Trained:
+    """Weights of one representation and how they were obtained."""
+
+    name: str
+    weights: np.ndarray
+    stages: dict[str, dict]  # stage -> {"iterations", "cost_start", "cost_end"}
+
+
+Progress = Callable[[str, int, float], None]
+
+
+def nominal_switch_targets(plant: Plant, reduced, throws: int = 2) -> list[SwitchTarget]:
+    """The plant's nominal throws as targets for the full reduced switch model."""
+    from models.switch import SwitchSimulation
+
+    sim = SwitchSimulation(plant, rate_hz=RATE_HZ)
+    targets = []
+    for _ in range(throws):
+        start = plant.signals_at(sim.state)
+        throw = sim.throw()
+        s0 = reduced.initial_state(start["rail_position_m"], start["angle_rad"], start["velocity_rad_s"],
+                                   start["current_a"])
+        velocity = np.gradient(throw.samples.rail_position_m, 1.0 / RATE_HZ)
+        targets.append(SwitchTarget(s0, throw.reference, throw.samples.current_a, throw.samples.rail_position_m,
+                                    velocity))
+    return targets
+
+
+def random_switch_target(plant: Plant, reduced, seed: int, duration_s: float = 30.0) -> SwitchTarget:
+    """A stretch of a training random-push series as a target for the full reduced switch model."""
+    reference = random_reference(np.random.default_rng(seed), duration_s, plant.params.drive.gear_ratio)
+    state = plant.run(plant.rest_state(1.0), 1.0, RATE_HZ).states[:, -1]
+    start = plant.signals_at(state)
+    trajectory = plant.run(plant.start_throw(state), duration_s, RATE_HZ, reference=reference)
+    s0 = reduced.initial_state(start["rail_position_m"], start["angle_rad"], start["velocity_rad_s"], start["current_a"])
+    return SwitchTarget(s0, reference, trajectory["current_a"], trajectory["rail_position_m"],
+                        trajectory["rail_velocity_m_s"])
+
+
+def _fit(stage: str, fn: Callable, z0: np.ndarray, iterations: int, progress: Progress | None) -> tuple[np.ndarray, dict]:
+    result = levenberg_marquardt(fn, z0, iterations, None if progress is None else
+                                 (lambda k, cost: progress(stage, k, cost)))
+    return result.z, {"iterations": result.iterations, "cost_start": result.history[0], "cost_end": result.cost}
+
+
+def train(representation: Representation, plant: Plant, *, seed: int = 0, series_seeds=TRAIN_SEEDS,
+          iterations: int = 40, progress: Progress | None = None) -> Trained:
+    """Fit one representation to plant data, deterministically for a seed."""
+    from models.reduced import ReducedSwitch
+
+    data = training_data(plant, series_seeds)
+    w0 = initial_weights(representation, seed)
+    stages = {}
+    if representation.acausal:
+        z, stages["shooting"] = _fit("shooting", acausal_residuals(representation, ReducedParams(), data),
+                                     z_from_weights(representation, w0), iterations, progress)
+        return Trained(representation.name, weights_from_z(representation, z), stages)
+    w, stages["regression"] = _fit("regression", causal_regression(representation, ReducedParams(), data), w0,
+                                   iterations, progress)
+    reduced = ReducedSwitch(representation, w)
+    targets = nominal_switch_targets(plant, reduced) + [random_switch_target(plant, reduced, series_seeds[0])]
+    w, stages["switch"] = _fit("switch", switch_residuals(reduced, targets), w, max(iterations // 4, 1), progress)
+    return Trained(representation.name, w, stages)

@@ -78,15 +78,32 @@ def cmd_simulate(args) -> int:
 
 def cmd_describe(args) -> int:
     from models.plant import Plant
+    from services.reduced_models import describe_reduced
 
-    description = {"plant": Plant().describe()}
+    description = {"plant": Plant().describe(), "reduced": describe_reduced()}
     if args.json:
         print(json.dumps(description, indent=2, default=float))
     else:
-        for model, stats in description.items():
-            print(model)
+        print("plant")
+        for key, value in description["plant"].items():
+            print(f"  {key:24s} {value}")
+        for name, stats in description["reduced"].items():
+            print(f"reduced {name}")
             for key, value in stats.items():
                 print(f"  {key:24s} {value}")
+    return 0
+
+
+def cmd_train(args) -> int:
+    from services.reduced_models import train_and_save
+
+    names = ["poly", "nn", "causal"] if args.model == "all" else [args.model]
+    try:
+        for name in names:
+            path, seconds = train_and_save(name, seed=args.seed, iterations=args.iterations, out_dir=args.out)
+            print(f"trained {name} in {seconds:.1f} s: {path}")
+    except OSError as error:
+        return _fail(f"cannot write the parameters: {error}")
     return 0
 
 
@@ -121,6 +138,14 @@ def build_parser() -> argparse.ArgumentParser:
     describe = commands.add_parser("describe", help="model statistics (states, parameters, rail nodes)")
     describe.add_argument("--json", action="store_true")
     describe.set_defaults(handler=cmd_describe)
+
+    train = commands.add_parser("train", help="regenerate the reduced rail models from high-fidelity plant data")
+    train.add_argument("--model", choices=["poly", "nn", "causal", "all"], default="all")
+    train.add_argument("--seed", type=bounded(int, 0, 2**32 - 1), default=0)
+    train.add_argument("--iterations", type=bounded(int, 1, 1000), default=40,
+                       help="Levenberg-Marquardt iterations per fitting stage")
+    train.add_argument("--out", default=None, metavar="DIR", help="where to write <model>.json (default: the shipped models/params)")
+    train.set_defaults(handler=cmd_train)
 
     report = commands.add_parser("report", help="PNG pictures of the throws in one or more recordings")
     report.add_argument("recordings", nargs="+", metavar="F.mcap")

@@ -1,0 +1,27 @@
+"""Shipped weights of the reduced rail representations (plain JSON, made by `railswitch train`)."""
+from __future__ import annotations
+
+import json
+from importlib import resources
+
+import numpy as np
+
+from models.rail_models import REPRESENTATIONS, Representation
+
+
+def weights_document(representation: Representation, weights: np.ndarray, training: dict) -> dict:
+    """The JSON document of one representation: named weights in physical units plus provenance."""
+    named = representation.unflatten(np.asarray(weights, dtype=float))
+    return {"representation": representation.name, "equations": list(representation.equations),
+            "weights": {k: np.asarray(v).tolist() for k, v in named.items()}, "training": training}
+
+
+def load(name: str) -> tuple[Representation, np.ndarray, dict]:
+    """Representation, flat weights and training provenance of a shipped model."""
+    if name not in REPRESENTATIONS:
+        raise ValueError(f"unknown rail model {name!r}; accepted: {', '.join(REPRESENTATIONS)}")
+    text = resources.files(__name__).joinpath(f"{name}.json").read_text()
+    document = json.loads(text)
+    representation = REPRESENTATIONS[name]
+    weights = representation.flatten({k: np.array(v) for k, v in document["weights"].items()})
+    return representation, weights, document["training"]

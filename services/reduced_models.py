@@ -1,0 +1,58 @@
+"""Training, saving and describing the reduced rail models (the I/O around models/training.py)."""
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+import models.params as shipped
+from models.plant import Plant
+from models.rail_models import REPRESENTATIONS
+from models.reduced import STATES
+from models.training import TRAIN_SEEDS, train
+
+
+def train_and_save(name: str, *, seed: int = 0, iterations: int = 40, out_dir: str | None = None) -> tuple[Path, float]:
+    """Train one representation with a live progress line; write <name>.json; return its path and the time taken."""
+    representation = REPRESENTATIONS[name]
+    target = Path(out_dir) if out_dir else Path(shipped.__file__).parent
+    if not target.is_dir():
+        raise OSError(f"{target} is not a directory")
+    start = time.perf_counter()
+    console = Console(stderr=True)
+    with Progress(TextColumn(f"[bold]{name}[/] {{task.description}}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+                  TextColumn("cost {task.fields[cost]}"), TimeElapsedColumn(), console=console,
+                  disable=not sys.stderr.isatty()) as progress:
+        tasks: dict[str, int] = {}
+
+        def report(stage: str, iteration: int, cost: float) -> None:
+            if stage not in tasks:
+                tasks[stage] = progress.add_task(stage, total=iterations, cost="")
+            progress.update(tasks[stage], completed=iteration, cost=f"{cost:.4g}")
+
+        trained = train(representation, Plant(), seed=seed, iterations=iterations, progress=report)
+    seconds = time.perf_counter() - start
+    provenance = {"seed": seed, "series_seeds": list(TRAIN_SEEDS), "series_seconds": 100.0, "sample_rate_hz": 50.0,
+                  "iterations": iterations, "stages": trained.stages, "seconds": round(seconds, 1)}
+    path = target / f"{name}.json"
+    path.write_text(json.dumps(shipped.weights_document(representation, trained.weights, provenance), indent=1) + "\n")
+    return path, seconds
+
+
+def describe_reduced() -> dict:
+    """States, parameters and equations of each reduced model (the paper's Tables 2 and 3)."""
+    out = {}
+    for name, representation in REPRESENTATIONS.items():
+        entry = {"rail_states": 2, "switch_states": len(STATES), "parameters": representation.size,
+                 "equations": list(representation.equations),
+                 "form": "acausal" if representation.acausal else "causal"}
+        try:
+            entry["trained"] = shipped.load(name)[2]
+        except FileNotFoundError:
+            entry["trained"] = None
+        out[name] = entry
+    return out

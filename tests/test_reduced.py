@@ -1,0 +1,132 @@
+"""Reduced hybrid switch models: dissipation, fidelity to the plant, fault sensitivities, training."""
+import casadi as ca
+import numpy as np
+import pytest
+
+import models.params as shipped
+from models.faults import FAULT_ORDER, fault_vector
+from models.plant import Plant
+from models.rail_models import REPRESENTATIONS
+from models.reduced import OUTPUTS, ReducedSwitch
+from models.switch import SwitchSimulation
+from models import training
+
+MODELS = ("poly", "nn", "causal")
+
+
+@pytest.fixture(scope="module")
+def nominal_plant_throws(plant):
+    sim = SwitchSimulation(plant)
+    starts, throws = [], []
+    for _ in range(2):
+        starts.append(plant.signals_at(sim.state))
+        throws.append(sim.throw())
+    return starts, throws
+
+
+@pytest.mark.parametrize("name", ["poly", "nn"])
+def test_acausal_representation_energy_never_increases_without_force(name):
+    representation, weights, _ = shipped.load(name)
+    x, v = ca.SX.sym("x"), ca.SX.sym("v")
+    rhs = ca.vertcat(v, representation.acceleration(x, v, 0.0, weights))
+    grid = np.linspace(0.002, 2.0, 1000)
+    integrate = ca.integrator("free_rail", "cvodes", {"x": ca.vertcat(x, v), "ode": rhs}, 0.0, grid,
+                              {"reltol": 1e-10, "abstol": 1e-12})
+    energy = ca.Function("energy", [x, v], [representation.energy(x, v, weights, quadrature_points=512)])
+    rng = np.random.default_rng(11)
+    for _ in range(8):
+        s0 = np.array([rng.uniform(0.95, 1.25), rng.uniform(-0.3, 0.3)])
+        trajectory = np.hstack([s0[:, None], np.asarray(integrate(x0=s0)["xf"])])
+        e = np.array([float(energy(*p)) for p in trajectory.T])
+        assert e[0] > 0.5
+        assert np.all(np.diff(e) <= 1e-7 * e[0])
+        assert e[-1] < e[0]
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_shipped_weights_reproduce_the_plants_nominal_throws(name, nominal_plant_throws):
+    representation, weights, _ = shipped.load(name)
+    reduced = ReducedSwitch(representation, weights)
+    starts, throws = nominal_plant_throws
+    for start, throw in zip(starts, throws):
+        s0 = reduced.initial_state(start["rail_position_m"], start["angle_rad"], start["velocity_rad_s"],
+                                   start["current_a"])
+        out = reduced.simulate(s0, throw.reference, len(throw.samples))
+        assert abs(out["rail_position_m"][-1] - throw.samples.rail_position_m[-1]) < 0.005
+        plateau = slice(150, 250)  # 3 s to 5 s: the blades are moving
+        plant_plateau = np.mean(np.abs(throw.samples.current_a[plateau]))
+        assert np.mean(np.abs(out["current_a"][plateau])) == pytest.approx(plant_plateau, rel=0.10)
+
+
+def output_sensitivities(reduced, s0, reference, faults):
+    """d(current, velocity)/d(fault parameter) over a throw, by CasADi's AD."""
+    n = 350
+    theta = ca.MX.sym("theta", len(FAULT_ORDER))
+    y, _ = reduced.rollout(n)(s0, reduced.reference_columns(reference, n), theta, reduced.weights)
+    signals = ca.vertcat(y[OUTPUTS.index("current_a"), :].T, y[OUTPUTS.index("velocity_rad_s"), :].T)
+    jac = ca.Function("fault_jacobian", [theta], [ca.jacobian(signals, theta)])
+    return dict(zip(FAULT_ORDER, np.asarray(jac(fault_vector(faults))).T))
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_outputs_have_finite_nonzero_derivatives_where_each_fault_acts(name):
+    from models.reference import throw_reference
+
+    representation, weights, _ = shipped.load(name)
+    reduced = ReducedSwitch(representation, weights)
+    faults = {"left_bolt_offset": 0.01, "right_bolt_offset": 0.01, "bearing_friction": 2000.0,
+              "obstacle_friction": 5e4, "obstacle_position": 1.10}
+    left_to_right = output_sensitivities(reduced, reduced.initial_state(1.0, 0.0),
+                                         throw_reference("left_to_right"), faults)
+    closed_right = reduced.initial_state(1.2, reduced.params.plant.drive.throw_angle_rad)
+    right_to_left = output_sensitivities(reduced, closed_right, throw_reference("right_to_left"), faults)
+    for sensitivities in (left_to_right, right_to_left):
+        assert all(np.all(np.isfinite(column)) for column in sensitivities.values())
+    assert np.max(np.abs(left_to_right["left_bolt_offset"])) > 1.0
+    assert np.max(np.abs(right_to_left["right_bolt_offset"])) > 1.0
+    for both in ("bearing_friction", "obstacle_friction", "obstacle_position"):
+        assert np.max(np.abs(left_to_right[both])) > 0 and np.max(np.abs(right_to_left[both])) > 0
+
+
+def test_poly_training_on_a_small_data_set_converges_and_is_deterministic():
+    plant = Plant()
+    representation = REPRESENTATIONS["poly"]
+    runs = [training.train(representation, plant, series_seeds=(5,), iterations=25) for _ in range(2)]
+    stage = runs[0].stages["shooting"]
+    assert stage["cost_end"] < 0.2 * stage["cost_start"]
+    np.testing.assert_array_equal(runs[0].weights, runs[1].weights)
+    weights = representation.unflatten(runs[0].weights)
+    assert all(float(weights[k]) >= 0 for k in ("m", "c0", "c1", "c2", "d0", "d1", "d2"))
+
+
+def test_describe_lists_each_reduced_model_with_states_parameters_and_equations():
+    from services.reduced_models import describe_reduced
+
+    described = describe_reduced()
+    assert set(described) == set(MODELS)
+    for name, entry in described.items():
+        assert entry["parameters"] == REPRESENTATIONS[name].size
+        assert entry["switch_states"] == 8 and entry["equations"]
+        assert entry["trained"]["series_seeds"]
+
+
+def test_train_command_writes_loadable_weights(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    result = subprocess.run([sys.executable, "-m", "services.cli", "train", "--model", "poly", "--iterations", "2",
+                             "--out", str(tmp_path)], capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    document = json.loads((tmp_path / "poly.json").read_text())
+    weights = REPRESENTATIONS["poly"].flatten({k: np.array(v) for k, v in document["weights"].items()})
+    assert np.all(np.isfinite(weights)) and document["training"]["iterations"] == 2
+
+
+def test_train_command_rejects_a_missing_output_directory_in_one_line(tmp_path):
+    import subprocess
+    import sys
+
+    result = subprocess.run([sys.executable, "-m", "services.cli", "train", "--model", "poly",
+                             "--out", str(tmp_path / "nope")], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1
