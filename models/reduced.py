@@ -8,6 +8,8 @@ have exact derivatives with respect to the fault parameters.
 """
 from __future__ import annotations
 
+import os
+import tempfile
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
 
@@ -38,7 +40,7 @@ class ReducedParams:
     substeps: int = 1  # ROS2 steps per sample
     # Contacts softer than the plant's: the reduced model needs their effect, not their stiffness.
     stock_stiffness_n_m: float = 1.0e6  # end stops at 1.00 m and 1.20 m, seen at the drive point
-    stock_damping_s_m: float = 1.0
+    contact_damping_s_m: float = 1.0  # Hunt-Crossley lambda of every reduced-model contact
     bolt_stiffness_n_m: float = 2.5e5  # along the rod (1e6 N/m at the blades through the lever)
     lock_stiffness_n_m: float = 1.0e6
     latch_rate_1_s: float = 50.0
@@ -49,9 +51,9 @@ class ReducedParams:
 def stock_rail_force(params: ReducedParams, x, v):
     """Smooth end stops where the blades meet the left and right stock rails."""
     rail = params.plant.rail
-    left = smooth_contact(rail.left_stock_m - x, -v, params.stock_stiffness_n_m, params.stock_damping_s_m,
+    left = smooth_contact(rail.left_stock_m - x, -v, params.stock_stiffness_n_m, params.contact_damping_s_m,
                           params.contact_width_m)
-    right = smooth_contact(x - rail.right_stock_m, v, params.stock_stiffness_n_m, params.stock_damping_s_m,
+    right = smooth_contact(x - rail.right_stock_m, v, params.stock_stiffness_n_m, params.contact_damping_s_m,
                            params.contact_width_m)
     return left - right
 
@@ -60,9 +62,12 @@ def jit_compiled(function: ca.Function) -> tuple[ca.Function, bool]:
     """The same Function compiled to machine code by CasADi's JIT (needs a C compiler), else itself."""
     try:
         symbols = function.mx_in()
+        scratch = tempfile.gettempdir()  # CasADi's intermediate files stay out of the user's directory
         compiled = ca.Function(function.name() + "_jit", symbols, function.call(symbols),
                                function.name_in(), function.name_out(),
-                               {"jit": True, "compiler": "shell", "jit_options": {"flags": ["-O2"], "verbose": False}})
+                               {"jit": True, "compiler": "shell", "jit_name": "railswitch_jit",
+                                "jit_options": {"flags": ["-O2"], "verbose": False,
+                                                "directory": scratch + os.sep}})
         compiled(*[np.zeros(function.size_in(i)) for i in range(function.n_in())])
         return compiled, True
     except RuntimeError:
@@ -79,7 +84,7 @@ class ReducedSwitch:
         self.params = params
         self.rate_hz = rate_hz
         self._adjuster = replace(params.plant.adjuster, contact_stiffness_n_m=params.bolt_stiffness_n_m,
-                                 contact_damping_s_m=params.stock_damping_s_m)
+                                 contact_damping_s_m=params.contact_damping_s_m)
         self._lock = replace(params.plant.lock, stiffness_n_m=params.lock_stiffness_n_m,
                              latch_rate_1_s=params.latch_rate_1_s)
         self.step = self._build_step()

@@ -130,3 +130,20 @@ def test_train_command_rejects_a_missing_output_directory_in_one_line(tmp_path):
     result = subprocess.run([sys.executable, "-m", "services.cli", "train", "--model", "poly",
                              "--out", str(tmp_path / "nope")], capture_output=True, text=True, timeout=60)
     assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1
+
+
+def test_compiled_rollout_matches_the_interpreted_one_and_leaves_no_files(tmp_path, monkeypatch):
+    import os
+
+    from models.reference import throw_reference
+
+    monkeypatch.chdir(tmp_path)
+    representation, weights, _ = shipped.load("poly")
+    interpreted = ReducedSwitch(representation, weights)
+    compiled = ReducedSwitch(representation, weights, compiled=True)
+    s0 = interpreted.initial_state(1.0, 0.0)
+    a = interpreted.simulate(s0, throw_reference("left_to_right"), 350)
+    b = compiled.simulate(s0, throw_reference("left_to_right"), 350)
+    if compiled.compiled:  # a C compiler was found; otherwise both are interpreted
+        np.testing.assert_allclose(b["current_a"], a["current_a"], rtol=1e-9, atol=1e-9)
+    assert os.listdir(tmp_path) == []
