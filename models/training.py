@@ -4,11 +4,12 @@ Data (paper, section "Hybrid rail switch model"): the plant's motor follows rand
 references that push the blades back and forth; we record force, position,
 velocity and acceleration at the adjuster-rail connection every 0.02 s.
 
-Fits use CasADi's automatic differentiation and a bounded Levenberg-Marquardt:
+Fits use CasADi's automatic differentiation and Levenberg-Marquardt, with bounds
+(non-negative coefficients, a floor on the mass) built into the parametrisation:
 - acausal forms: multiple shooting, each 1 s segment simulated (ROS2) from its
   measured start under the measured force, positions and velocities compared;
 - causal map: regression of F on (x, v, a), then fine-tuned inside the full
-  reduced switch model against the plant's nominal throws.
+  reduced switch model against the plant's nominal throws and a stretch of pushes.
 """
 from __future__ import annotations
 
@@ -89,7 +90,7 @@ def training_data(plant: Plant, series_seeds=None) -> list[RailData]:
     return [rail_experiment(plant, s) for s in seeds] + [nominal_throw_data(plant)]
 
 
-# -- a bounded Levenberg-Marquardt on CasADi residuals --------------------------------------------
+# -- Levenberg-Marquardt on CasADi residuals (bounds live in the parametrisations below) ------------
 @dataclass
 class FitResult:
     z: np.ndarray
@@ -131,6 +132,14 @@ def levenberg_marquardt(residual_jacobian: Callable[[np.ndarray], tuple[np.ndarr
         if not improved or relative < tolerance:
             break
     return FitResult(z, cost, len(history) - 1, history)
+
+
+def _numeric(residual_and_jacobian: ca.Function) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """Wrap a CasADi (residual, Jacobian) Function for levenberg_marquardt."""
+    def evaluate(z: np.ndarray):
+        r, j = residual_and_jacobian(z)
+        return np.asarray(r).ravel(), np.asarray(j)
+    return evaluate
 
 
 # -- parametrisations: z (unconstrained, order one) <-> physical weights ---------------------------
@@ -207,7 +216,7 @@ def acausal_residuals(representation: Representation, reduced: ReducedParams, da
     segments = starts.shape[1]
     step = rail_step_function(representation, reduced)
     roll = step.mapaccum("segment", SEGMENT_SAMPLES)
-    z = ca.MX.sym("z", _z_size(representation))
+    z = ca.MX.sym("z", representation.size)
     w = weights_from_z(representation, z)
     s0 = ca.MX.sym("s0", 2)
     f = ca.MX.sym("f", 2, SEGMENT_SAMPLES)
@@ -222,16 +231,7 @@ def acausal_residuals(representation: Representation, reduced: ReducedParams, da
     residual = ca.vec((predicted - ca.DM(target)) * ca.repmat(scale, 1, predicted.shape[1]))
     if representation.name == "nn":
         residual = ca.vertcat(residual, np.sqrt(NN_RIDGE) * z[2:])  # networks only, not mass and xfix
-    fn = ca.Function("acausal_residual", [z], [residual, ca.jacobian(residual, z)])
-
-    def evaluate(zv: np.ndarray):
-        r, j = fn(zv)
-        return np.asarray(r).ravel(), np.asarray(j)
-    return evaluate
-
-
-def _z_size(representation: Representation) -> int:
-    return representation.size
+    return _numeric(ca.Function("acausal_residual", [z], [residual, ca.jacobian(residual, z)]))
 
 
 # -- initial weights ---------------------------------------------------------------------------
@@ -320,12 +320,7 @@ def switch_residuals(reduced, targets: list[SwitchTarget]) -> Callable:
                    (y[3, :].T - target.rail_position_m) / POSITION_RESIDUAL_M,
                    (y[4, :].T - target.rail_velocity_m_s) / VELOCITY_RESIDUAL_M_S]
     residual = ca.vertcat(*blocks)
-    fn = ca.Function("switch_residual", [w], [residual, ca.jacobian(residual, w)])
-
-    def evaluate(wv: np.ndarray):
-        r, j = fn(wv)
-        return np.asarray(r).ravel(), np.asarray(j)
-    return evaluate
+    return _numeric(ca.Function("switch_residual", [w], [residual, ca.jacobian(residual, w)]))
 
 
 # -- the whole recipe per representation ----------------------------------------------------------
