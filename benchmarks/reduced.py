@@ -24,7 +24,7 @@ from models.rail_models import REPRESENTATIONS  # noqa: E402
 from models.reduced import ReducedSwitch  # noqa: E402
 from models.reference import THROW_DURATION_S, throw_reference  # noqa: E402
 from models.switch import SwitchSimulation  # noqa: E402
-from models.training import RATE_HZ, VALIDATION_SEEDS, random_reference, train  # noqa: E402
+from models.training import RATE_HZ, VALIDATION_SEEDS, random_push_run, train  # noqa: E402
 import models.params as shipped  # noqa: E402
 
 SAMPLES = int(THROW_DURATION_S * RATE_HZ)
@@ -60,10 +60,7 @@ def validation_series(plant: Plant) -> list[dict]:
     """Plant runs of the 25 validation references (shared by every representation)."""
     out = []
     for seed in VALIDATION_SEEDS:
-        reference = random_reference(np.random.default_rng(seed), 100.0, plant.params.drive.gear_ratio)
-        state = plant.run(plant.rest_state(1.0), 1.0, RATE_HZ).states[:, -1]
-        start = plant.signals_at(state)
-        trajectory = plant.run(plant.start_throw(state), 100.0, RATE_HZ, reference=reference)
+        reference, start, trajectory = random_push_run(plant, seed, 100.0)
         out.append({"seed": seed, "reference": reference, "start": start, "plant": trajectory})
     return out
 

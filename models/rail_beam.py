@@ -91,19 +91,21 @@ class RailBeam:
         return ca.DM(ca.Sparsity(k.shape[0], k.shape[1], k.indptr.tolist(), k.indices.tolist()), k.data)
 
     @cached_property
-    def shape(self) -> np.ndarray:
-        """Static deflection under a unit load at the drive point, 1 at the drive point."""
+    def _unit_load_deflection(self) -> np.ndarray:
+        """Static deflection of every node under 1 N at the drive point."""
         load = np.zeros(self.params.nodes)
         load[-1] = 1.0
-        deflection = sp.linalg.spsolve(self.stiffness, load)
-        return deflection / deflection[-1]
+        return sp.linalg.spsolve(self.stiffness, load)
+
+    @property
+    def shape(self) -> np.ndarray:
+        """Static deflection under a load at the drive point, 1 at the drive point."""
+        return self._unit_load_deflection / self._unit_load_deflection[-1]
 
     @property
     def tip_stiffness_n_m(self) -> float:
         """Static stiffness seen at the drive point (3EI/L^3 for a uniform continuous beam)."""
-        load = np.zeros(self.params.nodes)
-        load[-1] = 1.0
-        return 1.0 / sp.linalg.spsolve(self.stiffness, load)[-1]
+        return 1.0 / self._unit_load_deflection[-1]
 
     def rest_shape(self, drive_position_m: float) -> np.ndarray:
         """Node displacements of the static shape with the drive point at `drive_position_m`."""

@@ -39,6 +39,11 @@ def _mlp(inputs, w0, b0, w1, b1):
     return ca.mtimes(w1, ca.tanh(ca.mtimes(w0, inputs) + b0)) + b1
 
 
+def _floored_inertia(slope):
+    """dF/da of the causal map, kept above half the toe's inertia (smoothly), so a is always solvable."""
+    return softplus(slope - CAUSAL_MASS_KG / 2, CAUSAL_MASS_KG / 10) + CAUSAL_MASS_KG / 2
+
+
 @dataclass(frozen=True)
 class Representation:
     """Shapes of a representation's parameters and its constitutive law."""
@@ -83,8 +88,12 @@ class Representation:
         delta = x - p["xfix"]
         if self.name == "poly":
             return p["c0"] * delta + p["c1"] * delta**3 + p["c2"] * delta**5
+        return self.stiffness_nn(x, p) * delta
+
+    def stiffness_nn(self, x, p):
+        """c(x)^2 of the NN spring."""
         c = GAIN_SCALE * _mlp((x - p["xfix"]) / POSITION_SCALE_M, p["cw0"], p["cb0"], p["cw1"], p["cb1"])
-        return c**2 * delta
+        return c**2
 
     def damping(self, x, v, p):
         """d(x, v)^2 of the NN damper."""
@@ -99,7 +108,7 @@ class Representation:
             return (force - (self.force(x, v, 0.0, w))) / p["m"]
         a_sym = ca.SX.sym("a")
         residual = self.force(x, v, a_sym, w) - force
-        slope = softplus(ca.jacobian(residual, a_sym) - CAUSAL_MASS_KG / 2, CAUSAL_MASS_KG / 10) + CAUSAL_MASS_KG / 2
+        slope = _floored_inertia(ca.jacobian(residual, a_sym))
         a = ca.SX(0.0)
         for _ in range(newton_steps):
             r, s = ca.substitute([residual, slope], [a_sym], [a])
@@ -118,15 +127,12 @@ class Representation:
             return (p["m"], p["c0"] + 3 * p["c1"] * delta**2 + 5 * p["c2"] * delta**4,
                     p["d0"] + 3 * p["d1"] * v**2 + 5 * p["d2"] * v**4)
         if self.name == "nn":
-            delta = x - p["xfix"]
-            c = GAIN_SCALE * _mlp(delta / POSITION_SCALE_M, p["cw0"], p["cb0"], p["cw1"], p["cb1"])
-            return p["m"], c**2, self.damping(x, v, p)
+            return p["m"], self.stiffness_nn(x, p), self.damping(x, v, p)
         a_sym, x_sym, v_sym = ca.SX.sym("a"), ca.SX.sym("x"), ca.SX.sym("v")
         g = self.force(x_sym, v_sym, a_sym, w)
         slopes = ca.substitute([ca.jacobian(g, a_sym), ca.jacobian(g, x_sym), ca.jacobian(g, v_sym)],
                                [a_sym, x_sym, v_sym], [ca.SX(0.0), x, v])
-        mass = softplus(slopes[0] - CAUSAL_MASS_KG / 2, CAUSAL_MASS_KG / 10) + CAUSAL_MASS_KG / 2
-        return mass, ca.fmax(slopes[1], 0.0), ca.fmax(slopes[2], 0.0)
+        return _floored_inertia(slopes[0]), ca.fmax(slopes[1], 0.0), ca.fmax(slopes[2], 0.0)
 
     def energy(self, x, v, w, quadrature_points: int = 64):
         """Stored energy: kinetic plus the spring's potential (acausal forms only)."""

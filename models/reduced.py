@@ -173,7 +173,7 @@ class ReducedSwitch:
                       current_a: float = 0.0) -> np.ndarray:
         """Start of a throw: controller integrator empty, rails at rest, hooks latched where they close."""
         p = self.params.plant
-        rod_m = p.drive.rod_left_m + p.drive.crank_radius_m * (1.0 - np.cos(angle_rad / p.drive.gear_ratio))
+        rod_m = float(rod_kinematics(p.drive, angle_rad, 0.0)[0])
         hooks = latched_hooks(p.lock, p.drive, p.rail.left_stock_m, p.rail.right_stock_m, rail_position_m, rod_m)
         return np.array([angle_rad, velocity_rad_s, 0.0, current_a, rail_position_m, 0.0, *hooks])
 

@@ -60,11 +60,22 @@ def random_reference(rng: np.random.Generator, duration_s: float, gear_ratio: fl
     return Reference(np.array(t), np.array(v))
 
 
+def settled_state(plant: Plant) -> np.ndarray:
+    """The nominal plant closed at the left after 1 s unpowered: where every experiment starts."""
+    return plant.run(plant.rest_state(1.0), 1.0, RATE_HZ).states[:, -1]
+
+
+def random_push_run(plant: Plant, seed: int, duration_s: float):
+    """Random pushes through the nominal plant: (reference, signals at the start, trajectory), seeded."""
+    reference = random_reference(np.random.default_rng(seed), duration_s, plant.params.drive.gear_ratio)
+    state = settled_state(plant)
+    trajectory = plant.run(plant.start_throw(state), duration_s, RATE_HZ, reference=reference)
+    return reference, plant.signals_at(state), trajectory
+
+
 def rail_experiment(plant: Plant, seed: int, duration_s: float = 100.0) -> RailData:
     """One series of random pushes through the nominal plant (deterministic for a seed)."""
-    reference = random_reference(np.random.default_rng(seed), duration_s, plant.params.drive.gear_ratio)
-    state = plant.run(plant.rest_state(1.0), 1.0, RATE_HZ).states[:, -1]
-    trajectory = plant.run(plant.start_throw(state), duration_s, RATE_HZ, reference=reference)
+    _, _, trajectory = random_push_run(plant, seed, duration_s)
     return RailData(trajectory["drive_force_n"], trajectory["rail_position_m"], trajectory["rail_velocity_m_s"],
                     trajectory["rail_acceleration_m_s2"])
 
@@ -73,7 +84,7 @@ def nominal_throw_data(plant: Plant, throws: int = 2) -> RailData:
     """The connection's signals over nominal throws (left to right first), as in normal service."""
     from models.reference import DIRECTIONS, throw_reference
 
-    state = plant.run(plant.rest_state(1.0), 1.0, RATE_HZ).states[:, -1]
+    state = settled_state(plant)
     parts = []
     for k in range(throws):
         trajectory = plant.run(plant.start_throw(state), 7.0, RATE_HZ,
@@ -355,10 +366,7 @@ def nominal_switch_targets(plant: Plant, reduced, throws: int = 2) -> list[Switc
 
 def random_switch_target(plant: Plant, reduced, seed: int, duration_s: float = 30.0) -> SwitchTarget:
     """A stretch of a training random-push series as a target for the full reduced switch model."""
-    reference = random_reference(np.random.default_rng(seed), duration_s, plant.params.drive.gear_ratio)
-    state = plant.run(plant.rest_state(1.0), 1.0, RATE_HZ).states[:, -1]
-    start = plant.signals_at(state)
-    trajectory = plant.run(plant.start_throw(state), duration_s, RATE_HZ, reference=reference)
+    reference, start, trajectory = random_push_run(plant, seed, duration_s)
     s0 = reduced.initial_state(start["rail_position_m"], start["angle_rad"], start["velocity_rad_s"], start["current_a"])
     return SwitchTarget(s0, reference, trajectory["current_a"], trajectory["rail_position_m"],
                         trajectory["rail_velocity_m_s"])
