@@ -119,6 +119,12 @@ def cmd_report(args) -> int:
     return 0
 
 
+def cmd_diagnose(args) -> int:
+    from services.diagnose import diagnose_file
+
+    return diagnose_file(args.recording, model=args.model, jsonl=args.jsonl)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="railswitch", description="Online diagnosis of railway switches.")
     commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -150,7 +156,15 @@ def build_parser() -> argparse.ArgumentParser:
     report = commands.add_parser("report", help="PNG pictures of the throws in one or more recordings")
     report.add_argument("recordings", nargs="+", metavar="F.mcap")
     report.add_argument("--out", required=True, metavar="DIR")
+    report.add_argument("--model", choices=["poly", "nn", "causal"], default="poly",
+                        help="reduced model whose fits are drawn (single recording)")
     report.set_defaults(handler=cmd_report)
+
+    diagnose = commands.add_parser("diagnose", help="diagnose every throw of a recording offline")
+    diagnose.add_argument("recording", metavar="F.mcap")
+    diagnose.add_argument("--model", choices=["poly", "nn", "causal"], default="poly", help="reduced rail model")
+    diagnose.add_argument("--jsonl", action="store_true", help="one Diagnosis JSON object per throw on stdout")
+    diagnose.set_defaults(handler=cmd_diagnose)
     return parser
 
 
@@ -160,6 +174,9 @@ def main(argv: list[str] | None = None) -> int:
         return args.handler(args)
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:  # `railswitch diagnose F --jsonl | head`: the reader left, nothing is wrong
+        sys.stderr.close()
+        return 0
 
 
 if __name__ == "__main__":
