@@ -21,11 +21,15 @@ import numpy as np
 from scipy import stats
 
 from models.estimation import Estimate, Measurement, ThrowEstimator
-from models.reference import Reference
+from models.plant import Plant
+from models.reference import DIRECTIONS, Reference
+from models.switch import SwitchSimulation
 from schemas.faults import MODE_PARAMETERS
 
 FALSE_ALARM_RATE = 1e-3  # per fault mode and throw, under the nominal hypothesis
+MODEL_ERROR_MARGIN = 2.0  # model error varies from throw to throw: allow twice what commissioning saw
 DRIVING_BOLT = {"left_to_right": "left_bolt", "right_to_left": "right_bolt"}
+OTHER_DIRECTION = {"left_to_right": "right_to_left", "right_to_left": "left_to_right"}
 CLOSED_START_M = {"left_to_right": 1.0, "right_to_left": 1.2}  # where a throw starts when the last one closed
 GAP_TOLERANCE = 0.25  # of a sample period, for "the samples are evenly spaced"
 
@@ -69,14 +73,19 @@ class Evidence:
         return self.ratio > 1.0
 
 
-def evidence(estimates: dict[str, Estimate], mode: str) -> Evidence:
-    """F test of `mode` against the nominal fit, on the effective number of residuals."""
+def evidence(estimates: dict[str, Estimate], mode: str, model_gain: float = 0.0) -> Evidence:
+    """F test of `mode` against the nominal fit, on the effective number of residuals.
+
+    `model_gain` is what the mode's fit gains on healthy throws by absorbing model
+    error (measured at commissioning); only the gain beyond twice that counts.
+    """
     fitted, nominal = estimates[mode], estimates["nominal"]
     p = len(MODE_PARAMETERS[mode])
     n = effective_samples(fitted.residual)
+    gain = nominal.mse - fitted.mse - MODEL_ERROR_MARGIN * model_gain
     if n <= p + 1 or fitted.mse <= 0:
-        return Evidence(mode, 0.0 if nominal.mse <= fitted.mse else np.inf)
-    f = max(nominal.mse - fitted.mse, 0.0) / p / (fitted.mse / (n - p))
+        return Evidence(mode, 0.0 if gain <= 0 else np.inf)
+    f = max(gain, 0.0) / p / (fitted.mse / (n - p))
     critical = stats.f.ppf(1.0 - FALSE_ALARM_RATE, p, n - p)
     return Evidence(mode, f / critical)
 
@@ -98,15 +107,36 @@ class ThrowVerdict:
 
 def candidate_modes(direction: str) -> list[str]:
     """Modes a throw in `direction` can show: the bolt that drives it, bearings, obstacles."""
-    other_bolt = DRIVING_BOLT["right_to_left" if direction == "left_to_right" else "left_to_right"]
-    return [m for m in MODE_PARAMETERS if m != other_bolt]
+    return [m for m in MODE_PARAMETERS if m != DRIVING_BOLT[OTHER_DIRECTION[direction]]]
 
 
-def judge(direction: str, estimates: dict[str, Estimate]) -> tuple[str, dict[str, Evidence]]:
+def judge(direction: str, estimates: dict[str, Estimate],
+          model_gains: dict[str, float] | None = None) -> tuple[str, dict[str, Evidence]]:
     """The detected mode with the smallest MSE, or nominal when none is detected."""
-    found = {m: evidence(estimates, m) for m in candidate_modes(direction)}
+    gains = model_gains or {}
+    found = {m: evidence(estimates, m, gains.get(m, 0.0)) for m in candidate_modes(direction)}
     detected = [m for m, e in found.items() if e.detected]
     return (min(detected, key=lambda m: estimates[m].mse) if detected else "nominal"), found
+
+
+def commissioning_gains(estimator: ThrowEstimator, plant: Plant) -> dict[str, dict[str, float]]:
+    """Per direction and mode: how much the mode's fit improves on healthy, noise-free plant throws.
+
+    Like commissioning a point machine: throw the healthy switch once each way
+    and note how much of the reduced model's error each fault mode can absorb.
+    """
+    switch = SwitchSimulation(plant, rate_hz=estimator.reduced.rate_hz)
+    gains, rail = {}, CLOSED_START_M["left_to_right"]
+    for _ in DIRECTIONS:
+        start_angle = plant.signals_at(switch.state)["angle_rad"]
+        throw = switch.throw()
+        samples, n = throw.samples, estimator.samples
+        m = Measurement(throw.reference, samples.current_a[:n], samples.angle_rad[:n], samples.velocity_rad_s[:n],
+                        start_angle, rail)
+        estimates = estimator.fit_all(m)
+        gains[throw.direction] = {mode: max(estimates["nominal"].mse - estimates[mode].mse, 0.0) for mode in MODE_PARAMETERS}
+        rail = CLOSED_START_M[OTHER_DIRECTION[throw.direction]]
+    return gains
 
 
 @dataclass(frozen=True)
@@ -121,6 +151,17 @@ class ThrowInput:
     velocity_rad_s: np.ndarray
     duration_s: float | None  # start to end event; None when no end event came
     missing_samples: int = 0
+
+
+def start_angle(t_s: np.ndarray, angle_rad: np.ndarray, velocity_rad_s: np.ndarray) -> float:
+    """Motor angle at the throw's start, from every sample rather than the first alone.
+
+    angle(t) = angle(0) + integral of the velocity, so each sample gives an
+    estimate of angle(0); their mean is far less noisy than the first sample
+    (a wrong start angle shifts the rod and looks like a bolt offset).
+    """
+    travelled = np.concatenate([[0.0], np.cumsum(0.5 * (velocity_rad_s[1:] + velocity_rad_s[:-1]) * np.diff(t_s))])
+    return float(np.mean(angle_rad - travelled))
 
 
 def sample_rate_hz(t_s: np.ndarray) -> float:
@@ -156,7 +197,8 @@ def problem(throw: ThrowInput) -> str | None:
 class SwitchDiagnoser:
     """Diagnoses one switch throw by throw; remembers the latest verdict per direction."""
 
-    estimator_for: Callable[[float, int], ThrowEstimator]  # (rate, samples) -> estimator, built once and shared
+    estimator_for: Callable[[float, int], tuple[ThrowEstimator, dict]]  # (rate, samples) -> estimator and its
+    # commissioning gains, built once and shared
     latest: dict[str, ThrowVerdict] = field(default_factory=dict)
     rail_m: float | None = None  # blades' position after the last diagnosed throw
 
@@ -166,18 +208,27 @@ class SwitchDiagnoser:
         if why is not None:
             self.rail_m = None  # unknown where the blades are: assume the next throw starts closed
             return "unknown", why, None
-        estimator = self.estimator_for(round(sample_rate_hz(throw.t_s), 6), len(throw.t_s) - 1)
+        estimator, gains = self.estimator_for(round(sample_rate_hz(throw.t_s), 6), len(throw.t_s) - 1)
         start_rail = self.rail_m if self.rail_m is not None else CLOSED_START_M[throw.direction]
         m = Measurement(throw.reference, throw.current_a[1:], throw.angle_rad[1:], throw.velocity_rad_s[1:],
-                        float(throw.angle_rad[0]), start_rail)
+                        start_angle(throw.t_s, throw.angle_rad, throw.velocity_rad_s), start_rail,
+                        self.background(throw.direction))
         estimates = estimator.fit_all(m)
-        mode, found = judge(throw.direction, estimates)
+        mode, found = judge(throw.direction, estimates, gains[throw.direction])
         end_rail = float(estimator.simulate(m, estimates[mode].params)["final_state"][4])
         verdict = ThrowVerdict(throw.direction, mode, found, estimates, end_rail)
         self.latest[throw.direction] = verdict
         self.rail_m = end_rail
         decision, reason = self.combined()
         return decision, reason, verdict
+
+    def background(self, direction: str) -> dict[str, float]:
+        """The other direction's bolt as its latest throw estimated it (this throw cannot show it)."""
+        other = OTHER_DIRECTION[direction]
+        verdict = self.latest.get(other)
+        if verdict is None or verdict.mode != DRIVING_BOLT[other]:
+            return {}
+        return dict(verdict.estimates[verdict.mode].params)
 
     def combined(self) -> tuple[str, str | None]:
         """Nominal if the latest throw in each direction is; else the fault with the strongest evidence."""

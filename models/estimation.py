@@ -16,7 +16,7 @@ end of the previous throw's fit, or the closed position.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
@@ -56,6 +56,9 @@ class Measurement:
     velocity_rad_s: np.ndarray
     start_angle_rad: float
     start_rail_m: float
+    # Faults known from earlier throws that this throw cannot show (the other direction's bolt):
+    # held at these values in every hypothesis that does not free them.
+    background: dict[str, float] = field(default_factory=dict)
 
     def matrix(self) -> np.ndarray:
         return np.column_stack([self.current_a, self.angle_rad, self.velocity_rad_s])
@@ -147,7 +150,7 @@ class ThrowEstimator:
         """Fit one hypothesis from `start` (warm start or grid point; nominal elsewhere)."""
         data = data if data is not None else self._data(m)
         free = list(HYPOTHESES[mode])
-        theta = fault_vector({k: v for k, v in (start or {}).items() if k in free})
+        theta = fault_vector({**m.background, **{k: v for k, v in (start or {}).items() if k in free}})
         if not free:
             return _estimate(mode, {}, {}, self._residuals(theta, data), 0)
         index = [FAULT_ORDER.index(n) for n in free]
@@ -199,10 +202,10 @@ class ThrowEstimator:
         std = np.where(np.isfinite(std), np.minimum(std, high - low), high - low)
         return {name: float(s) for name, s in zip(free, std)}
 
-    def grid_starts(self, data: tuple) -> dict[str, dict[str, float]]:
+    def grid_starts(self, m: Measurement, data: tuple) -> dict[str, dict[str, float]]:
         """The best point of each mode's coarse grid, by residual alone (all grids in one call)."""
         self.evaluations += 1
-        thetas = np.column_stack([fault_vector(p) for p in _GRID_POINTS])
+        thetas = np.column_stack([fault_vector({**m.background, **p}) for p in _GRID_POINTS])
         costs = np.asarray(self._grid_fn(thetas, *data)).ravel()
         costs = np.where(np.isfinite(costs), costs, np.inf)
         best, first = {}, 0
@@ -215,7 +218,7 @@ class ThrowEstimator:
         """Every hypothesis (grid-started), then the joint fit warm-started from the best of them."""
         data = self._data(m)
         out = {"nominal": self.fit("nominal", m, data)}
-        starts = self.grid_starts(data)
+        starts = self.grid_starts(m, data)
         for mode in MODE_PARAMETERS:
             out[mode] = self.fit(mode, m, data, starts[mode])
         best = min(MODE_PARAMETERS, key=lambda mode: out[mode].mse)
@@ -223,6 +226,6 @@ class ThrowEstimator:
         return out
 
     def simulate(self, m: Measurement, faults: dict[str, float]) -> dict[str, np.ndarray]:
-        """The reduced model's outputs and final state for this throw under `faults`."""
+        """The reduced model's outputs and final state for this throw under `faults` (and the background)."""
         s0 = self.reduced.initial_state(m.start_rail_m, m.start_angle_rad)
-        return self.reduced.simulate(s0, m.reference, self.samples, faults)
+        return self.reduced.simulate(s0, m.reference, self.samples, {**m.background, **faults})

@@ -39,11 +39,11 @@ def diagnose_file(path: str, model: str = "poly", jsonl: bool = False) -> int:
     """Diagnose a recording; 1 when nothing could be read, else 0."""
     stderr = Console(stderr=True)
     if not Path(path).is_file():
-        stderr.print(f"railswitch diagnose: {path}: no such file", markup=False, highlight=False)
+        print(f"railswitch diagnose: {path}: no such file", file=sys.stderr)
         return 2
     messages, note = read_messages(path)
     if note:
-        stderr.print(note, markup=False, highlight=False)
+        print(note, file=sys.stderr)  # one line, never wrapped
     if not messages:
         return 1
     throws = sum(isinstance(m, ThrowEvent) and m.phase == "start" for m in messages)

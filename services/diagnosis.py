@@ -12,9 +12,10 @@ from functools import lru_cache
 
 import numpy as np
 
-from models.diagnosis import SwitchDiagnoser, ThrowInput, ThrowVerdict
+from models.diagnosis import SwitchDiagnoser, ThrowInput, ThrowVerdict, commissioning_gains
 from models.estimation import ThrowEstimator
 from models.params import load
+from models.plant import Plant
 from models.reduced import ReducedParams, ReducedSwitch
 from models.reference import Reference
 from schemas import Diagnosis, Hypothesis, Message
@@ -46,10 +47,12 @@ class Diagnoser:
             raise ValueError(f"unknown model {self.model!r}; accepted: {', '.join(MODELS)}")
         self._estimator = lru_cache(maxsize=8)(self._build_estimator)
 
-    def _build_estimator(self, rate_hz: float, samples: int) -> ThrowEstimator:
+    def _build_estimator(self, rate_hz: float, samples: int) -> tuple[ThrowEstimator, dict]:
+        """The estimator for throws of `samples` samples at `rate_hz`, commissioned on the healthy plant."""
         representation, weights, _ = load(self.model)
         reduced = ReducedSwitch(representation, weights, ReducedParams(substeps=DIAGNOSIS_SUBSTEPS), rate_hz=rate_hz)
-        return ThrowEstimator(reduced, samples, compiled=self.compiled)
+        estimator = ThrowEstimator(reduced, samples, compiled=self.compiled)
+        return estimator, commissioning_gains(estimator, Plant())
 
     def warm_up(self, rate_hz: float = 50.0, samples: int = 350) -> None:
         """Build (and compile) the estimator for standard throws before the first one arrives."""

@@ -7,7 +7,7 @@ from pathlib import Path
 from models.plant import Plant
 from models.switch import SwitchSimulation
 from services.mcap_io import RecordingWriter, check_writable
-from services.switch_messages import motor_messages, throw_messages, truth_message
+from services.switch_messages import switch_messages
 
 
 @dataclass(frozen=True)
@@ -28,14 +28,8 @@ def simulate_to_mcap(out: str | Path, *, switch_id: str = "sw1", throws: int = 2
     check_writable(out)
     sim = SwitchSimulation(plant or Plant(), rate_hz=rate_hz, faults=faults, noise_rel=noise_rel, seed=seed)
     with RecordingWriter(out) as writer:
-        writer.write(*truth_message(switch_id, sim, 0))
-        for key, message in motor_messages(switch_id, sim, sim.initial_sample()):
+        for key, message in switch_messages(switch_id, sim, throws, progress):
             writer.write(key, message)
-        for _ in range(throws):
-            for key, message in throw_messages(switch_id, sim, sim.throw()):
-                writer.write(key, message)
-            if progress is not None:
-                progress()
         count = writer.message_count
     path = Path(out)
     return SimulationSummary(path, throws, count, path.stat().st_size)

@@ -38,3 +38,13 @@ def throw_messages(switch_id: str, sim: SwitchSimulation, throw: Throw) -> Itera
     yield throw_event(switch_id, sim, throw, "start")
     yield from motor_messages(switch_id, sim, throw.samples)
     yield throw_event(switch_id, sim, throw, "end")
+
+
+def switch_messages(switch_id: str, sim: SwitchSimulation, throws: int, progress=None) -> Iterator[tuple[str, Message]]:
+    """A simulated switch from the start: truth and the sample at rest, then `throws` throws."""
+    yield truth_message(switch_id, sim, 0)
+    yield from motor_messages(switch_id, sim, sim.initial_sample())
+    for _ in range(throws):
+        yield from throw_messages(switch_id, sim, sim.throw())
+        if progress is not None:
+            progress()
