@@ -99,6 +99,7 @@ class ThrowVerdict:
     evidence: dict[str, Evidence]
     estimates: dict[str, Estimate]
     end_rail_m: float  # where the decided hypothesis leaves the blades
+    fitted: dict[str, np.ndarray]  # the decided hypothesis's outputs at the samples after the start
 
     @property
     def strength(self) -> float:
@@ -215,8 +216,9 @@ class SwitchDiagnoser:
                         self.background(throw.direction))
         estimates = estimator.fit_all(m)
         mode, found = judge(throw.direction, estimates, gains[throw.direction])
-        end_rail = float(estimator.simulate(m, estimates[mode].params)["final_state"][4])
-        verdict = ThrowVerdict(throw.direction, mode, found, estimates, end_rail)
+        fitted = estimator.simulate(m, estimates[mode].params)
+        end_rail = float(fitted.pop("final_state")[4])
+        verdict = ThrowVerdict(throw.direction, mode, found, estimates, end_rail, fitted)
         self.latest[throw.direction] = verdict
         self.rail_m = end_rail
         decision, reason = self.combined()

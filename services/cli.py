@@ -111,7 +111,7 @@ def cmd_report(args) -> int:
     from services.report import write_report
 
     try:
-        written = write_report(args.recordings, args.out)
+        written = write_report(args.recordings, args.out, None if args.model == "none" else args.model)
     except (OSError, ValueError) as error:
         return _fail(str(error))
     for path in written:
@@ -156,8 +156,8 @@ def build_parser() -> argparse.ArgumentParser:
     report = commands.add_parser("report", help="PNG pictures of the throws in one or more recordings")
     report.add_argument("recordings", nargs="+", metavar="F.mcap")
     report.add_argument("--out", required=True, metavar="DIR")
-    report.add_argument("--model", choices=["poly", "nn", "causal"], default="poly",
-                        help="reduced model whose fits are drawn (single recording)")
+    report.add_argument("--model", choices=["poly", "nn", "causal", "none"], default="poly",
+                        help="reduced model whose fits and estimates are drawn (one recording); none: data only")
     report.set_defaults(handler=cmd_report)
 
     diagnose = commands.add_parser("diagnose", help="diagnose every throw of a recording offline")

@@ -117,6 +117,14 @@ def test_report_overlays_recordings_in_one_picture_per_throw(recording, tmp_path
     assert all(p.read_bytes().startswith(b"\x89PNG") and p.stat().st_size > 20_000 for p in pictures)
 
 
+def test_report_of_one_recording_draws_the_fits_and_the_estimates_over_throws(recording, tmp_path):
+    result = run("report", str(recording), "--out", str(tmp_path / "fits"))
+    assert result.returncode == 0, result.stderr
+    names = sorted(p.name for p in (tmp_path / "fits").glob("*.png"))
+    assert names == ["estimates.png", "pm-7_throw000_left_to_right.png", "pm-7_throw001_right_to_left.png"]
+    assert (tmp_path / "fits" / "estimates.png").stat().st_size > 20_000
+
+
 def test_report_on_a_file_that_is_not_a_recording_fails_in_one_line(tmp_path):
     junk = tmp_path / "junk.mcap"
     junk.write_bytes(b"definitely not mcap")
@@ -129,7 +137,7 @@ def test_report_on_a_file_that_is_not_a_recording_fails_in_one_line(tmp_path):
 def test_report_on_a_truncated_recording_says_so_and_draws_what_was_recovered(recording, tmp_path):
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(recording.read_bytes()[: recording.stat().st_size * 2 // 3])
-    result = run("report", str(cut), "--out", str(tmp_path / "pictures"))
+    result = run("report", str(cut), "--out", str(tmp_path / "pictures"), "--model", "none")
     assert result.returncode == 0, result.stderr
     assert "truncated" in result.stderr and len(result.stderr.strip().splitlines()) == 1
     assert len(list((tmp_path / "pictures").glob("*.png"))) >= 1
