@@ -93,21 +93,20 @@ def _only_throw_zero(diagnoses):
     return first[0]
 
 
-def test_missing_samples_inside_a_throw_give_unknown_with_a_reason(diagnoser, throw_messages_of_one_recording):
-    messages = list(throw_messages_of_one_recording)
+def _without_samples(messages, chosen: slice):
+    """The messages less the first throw's samples picked by `chosen`."""
     start, end = _first_throw_span(messages)
-    middle = [i for i in range(start, end) if isinstance(messages[i], MotorSample)][100:103]
-    kept = [m for i, m in enumerate(messages) if i not in middle]
-    d = _only_throw_zero(diagnose(diagnoser, kept))
+    dropped = set([i for i in range(start, end) if isinstance(messages[i], MotorSample)][chosen])
+    return [m for i, m in enumerate(messages) if i not in dropped]
+
+
+def test_missing_samples_inside_a_throw_give_unknown_with_a_reason(diagnoser, throw_messages_of_one_recording):
+    d = _only_throw_zero(diagnose(diagnoser, _without_samples(throw_messages_of_one_recording, slice(100, 103))))
     assert d.decision == "unknown" and "3 samples missing" in d.reason
 
 
 def test_throw_cut_off_before_its_end_gives_unknown(diagnoser, throw_messages_of_one_recording):
-    messages = list(throw_messages_of_one_recording)
-    start, end = _first_throw_span(messages)
-    tail = [i for i in range(start, end) if isinstance(messages[i], MotorSample)][-120:]
-    kept = [m for i, m in enumerate(messages) if i not in tail]
-    d = _only_throw_zero(diagnose(diagnoser, kept))
+    d = _only_throw_zero(diagnose(diagnoser, _without_samples(throw_messages_of_one_recording, slice(-120, None))))
     assert d.decision == "unknown" and "samples stop at" in d.reason
 
 
