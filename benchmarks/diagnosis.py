@@ -21,7 +21,7 @@ from models.diagnosis import ThrowVerdict
 from models.plant import Plant
 from models.switch import SwitchSimulation
 from schemas import Diagnosis
-from services.diagnose import read_messages
+from services.mcap_io import load_recording
 from services.diagnosis import Diagnoser, diagnose_messages
 from services.switch_messages import switch_messages
 
@@ -86,7 +86,7 @@ def main() -> None:
 
     paper, worst = [], 0.0
     for name, (mode, truth) in PAPER_SCENARIOS.items():
-        messages, _ = read_messages(RECORDINGS / f"{name}.mcap")
+        messages = load_recording(RECORDINGS / f"{name}.mcap").messages
         diagnoses = [item.diagnosis for item in diagnose_messages(messages, diagnoser)]
         latencies += [d.latency_ms for d in diagnoses]
         switch_id = diagnoses[-1].switch_id

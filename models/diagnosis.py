@@ -129,11 +129,11 @@ def commissioning_gains(estimator: ThrowEstimator, plant: Plant) -> dict[str, di
     switch = SwitchSimulation(plant, rate_hz=estimator.reduced.rate_hz)
     gains, rail = {}, CLOSED_START_M["left_to_right"]
     for _ in DIRECTIONS:
-        start_angle = plant.signals_at(switch.state)["angle_rad"]
+        angle_at_start = plant.signals_at(switch.state)["angle_rad"]  # exact: the plant's own state
         throw = switch.throw()
         samples, n = throw.samples, estimator.samples
         m = Measurement(throw.reference, samples.current_a[:n], samples.angle_rad[:n], samples.velocity_rad_s[:n],
-                        start_angle, rail)
+                        angle_at_start, rail)
         estimates = estimator.fit_all(m)
         gains[throw.direction] = {mode: max(estimates["nominal"].mse - estimates[mode].mse, 0.0) for mode in MODE_PARAMETERS}
         rail = CLOSED_START_M[OTHER_DIRECTION[throw.direction]]

@@ -80,7 +80,6 @@ class Estimate:
     residual: np.ndarray  # scaled residuals of current, angle and velocity, one column each
 
 
-
 def _estimate(mode: str, params: dict, std: dict, r: np.ndarray, iterations: int) -> Estimate:
     """An Estimate from the solver's residual vector (divided by sqrt(3N), stacked signal by signal)."""
     return Estimate(mode, params, std, float(r @ r), iterations, r.reshape(len(MEASURED), -1).T * np.sqrt(r.size))
@@ -119,7 +118,6 @@ class ThrowEstimator:
             functions, flags = zip(*(jit_compiled(f) for f in functions))
             self.compiled = all(flags)
         self._residual_fn, self._jacobian_fn, self._directional_fn, self._grid_fn = functions
-        self.evaluations = 0
 
     def _data(self, m: Measurement) -> tuple:
         s0 = self.reduced.initial_state(m.start_rail_m, m.start_angle_rad)
@@ -127,7 +125,6 @@ class ThrowEstimator:
         return tuple(ca.DM(d) for d in data)  # converted once, not at every call
 
     def _residuals(self, theta: np.ndarray, data: tuple) -> np.ndarray:
-        self.evaluations += 1
         return np.asarray(self._residual_fn(theta, *data)).ravel()
 
     def _cost(self, theta: np.ndarray, data: tuple) -> float:
@@ -137,7 +134,6 @@ class ThrowEstimator:
 
     def _linearise(self, theta: np.ndarray, data: tuple, index: list[int]) -> tuple[np.ndarray, np.ndarray]:
         """Residual and its Jacobian columns for the parameters at `index`."""
-        self.evaluations += 1
         if len(index) == 1:
             r, j = self._directional_fn(theta, *data, np.eye(len(FAULT_ORDER))[index[0]])
         else:
@@ -204,7 +200,6 @@ class ThrowEstimator:
 
     def grid_starts(self, m: Measurement, data: tuple) -> dict[str, dict[str, float]]:
         """The best point of each mode's coarse grid, by residual alone (all grids in one call)."""
-        self.evaluations += 1
         thetas = np.column_stack([fault_vector({**m.background, **p}) for p in _GRID_POINTS])
         costs = np.asarray(self._grid_fn(thetas, *data)).ravel()
         costs = np.where(np.isfinite(costs), costs, np.inf)

@@ -10,19 +10,7 @@ from rich.table import Table
 
 from schemas import ThrowEvent, encode
 from services.diagnosis import DiagnosedThrow, Diagnoser, diagnose_messages
-from services.mcap_io import RecordingReader
-
-
-def read_messages(path: str | Path, command: str = "railswitch diagnose") -> tuple[list, str | None]:
-    """All messages of a recording and a one-line note on damage or skipped messages (None if clean)."""
-    reader = RecordingReader(path)
-    messages = [record.message for record in reader]
-    notes = []
-    if reader.damage:
-        notes.append(f"{reader.damage}; recovered {reader.messages_read} messages before it")
-    if reader.skipped:
-        notes.append("skipped " + ", ".join(f"{n} ({reason})" for reason, n in reader.skipped.items()))
-    return messages, (f"{command}: {path}: " + "; ".join(notes)) if notes else None
+from services.mcap_io import load_recording
 
 
 def key_estimate(item: DiagnosedThrow) -> str:
@@ -41,9 +29,11 @@ def diagnose_file(path: str, model: str = "poly", jsonl: bool = False) -> int:
     if not Path(path).is_file():
         print(f"railswitch diagnose: {path}: no such file", file=sys.stderr)
         return 2
-    messages, note = read_messages(path)
+    recording = load_recording(path)
+    messages = recording.messages
+    note = recording.note()
     if note:
-        print(note, file=sys.stderr)  # one line, never wrapped
+        print(f"railswitch diagnose: {path}: {note}", file=sys.stderr)  # one line, never wrapped
     if not messages:
         return 1
     throws = sum(isinstance(m, ThrowEvent) and m.phase == "start" for m in messages)

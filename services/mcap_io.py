@@ -7,6 +7,7 @@ import os
 import tempfile
 from collections import Counter
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 from typing import IO, NamedTuple, Self
@@ -213,6 +214,31 @@ def _describe_damage(error: Exception, position: int, size: int) -> str:
         return f"truncated after {size} bytes: the last record is incomplete"
     detail = " ".join(f"{type(error).__name__}: {error}".split())
     return f"corrupt near byte {position} of {size}: {detail}"
+
+
+@dataclass(frozen=True)
+class Recording:
+    """Every message a recording holds, with what could not be read."""
+
+    messages: list[Message]
+    damage: str | None
+    skipped: Counter[str]
+
+    def note(self) -> str | None:
+        """One line on damage and skipped messages, or None when the file was clean."""
+        notes = []
+        if self.damage:
+            notes.append(f"{self.damage}; recovered {len(self.messages)} messages before it")
+        if self.skipped:
+            notes.append("skipped " + ", ".join(f"{n} ({reason})" for reason, n in self.skipped.items()))
+        return "; ".join(notes) or None
+
+
+def load_recording(path: str | os.PathLike[str]) -> Recording:
+    """All decoded messages of a recording, read once, with its damage and skip counts."""
+    reader = RecordingReader(path)
+    messages = [record.message for record in reader]
+    return Recording(messages, reader.damage, reader.skipped)
 
 
 def read_recording(path: str | os.PathLike[str]) -> Iterator[RecordedMessage]:

@@ -12,7 +12,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from schemas.faults import FAULT_PARAMETERS  # noqa: E402
 from services.diagnosis import DiagnosedThrow, Diagnoser, diagnose_messages  # noqa: E402
-from services.mcap_io import RecordingReader  # noqa: E402
+from schemas import Message  # noqa: E402
+from services.mcap_io import load_recording  # noqa: E402
 from services.throw_cutter import CutThrow, cut_throws  # noqa: E402
 
 PANELS = (("current_a", "current [A]"), ("angle_rad", "angle [rad]"), ("velocity_rad_s", "angular velocity [rad/s]"))
@@ -33,22 +34,21 @@ def _label(path: Path, throw: CutThrow) -> str:
     return f"{path.stem} ({', '.join(shown)})"
 
 
-def load_throws(path: Path) -> list[CutThrow]:
-    """Throws of one recording; damage is reported on stderr with what could be read."""
-    reader = RecordingReader(path)
-    throws = list(cut_throws(message.message for message in reader))
-    damage = f"; {reader.damage}" if reader.damage else ""
+def load_throws(path: Path) -> tuple[list[Message], list[CutThrow]]:
+    """Messages and throws of one recording; damage is reported on stderr with what could be read."""
+    recording = load_recording(path)
+    throws = list(cut_throws(recording.messages))
+    damage = f"; {recording.damage}" if recording.damage else ""
     if not throws:
-        raise ValueError(f"{path}: no throws found in {reader.messages_read} messages{damage}")
-    if damage:
-        print(f"railswitch report: {path}: {reader.damage}; using the {reader.messages_read} messages before it",
-              file=sys.stderr)
-    return throws
+        raise ValueError(f"{path}: no throws found in {len(recording.messages)} messages{damage}")
+    note = recording.note()
+    if note:
+        print(f"railswitch report: {path}: {note}", file=sys.stderr)
+    return recording.messages, throws
 
 
-def diagnosed(path: Path, model: str) -> dict[tuple[str, int], DiagnosedThrow]:
+def diagnosed(messages: list[Message], model: str) -> dict[tuple[str, int], DiagnosedThrow]:
     """Every throw of one recording diagnosed, by (switch, throw index)."""
-    messages = [record.message for record in RecordingReader(path)]
     return {(item.throw.switch_id, item.throw.start.throw_index): item
             for item in diagnose_messages(messages, Diagnoser(model))}
 
@@ -93,10 +93,11 @@ def write_report(recordings: list[str], out_dir: str, model: str | None = None) 
     by_index: dict[tuple[str, int, str], list[tuple[str, CutThrow]]] = defaultdict(list)
     for name in recordings:
         path = Path(name)
-        for throw in load_throws(path):
+        messages, throws = load_throws(path)
+        for throw in throws:
             by_index[(throw.switch_id, throw.start.throw_index, throw.start.direction)].append((_label(path, throw), throw))
 
-    fits = diagnosed(Path(recordings[0]), model) if model and len(recordings) == 1 else {}
+    fits = diagnosed(messages, model) if model and len(recordings) == 1 else {}
     written = []
     for (switch_id, index, direction), curves in sorted(by_index.items()):
         fig, axes = plt.subplots(len(PANELS), 1, figsize=(9, 8), sharex=True)

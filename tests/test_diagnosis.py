@@ -13,7 +13,7 @@ from models.estimation import Measurement
 from models.reference import throw_reference
 from models.switch import SwitchSimulation
 from schemas import Diagnosis, MotorSample, ThrowEvent, decode
-from services.diagnose import read_messages
+from services.mcap_io import load_recording
 from services.diagnosis import Diagnoser, diagnose_messages
 from services.switch_messages import switch_messages
 from services.throw_cutter import cut_throws
@@ -36,15 +36,16 @@ def diagnose(diagnoser: Diagnoser, messages) -> list[Diagnosis]:
 
 @pytest.mark.parametrize("scenario", ["left_bolt", "right_bolt", "missing_bearing", "obstacle"])
 def test_paper_scenario_is_decided_correctly(diagnoser, scenario):
-    messages, note = read_messages(RECORDINGS / f"{scenario}.mcap")
-    assert note is None
+    recording = load_recording(RECORDINGS / f"{scenario}.mcap")
+    assert recording.note() is None
+    messages = recording.messages
     diagnoses = diagnose(diagnoser, messages)
     assert [d.throw_index for d in diagnoses] == [0, 1]
     assert diagnoses[-1].decision == scenario, diagnoses[-1].reason
 
 
 def test_nominal_recording_is_nominal(diagnoser):
-    messages, _ = read_messages(RECORDINGS / "nominal.mcap")
+    messages = load_recording(RECORDINGS / "nominal.mcap").messages
     assert [d.decision for d in diagnose(diagnoser, messages)] == ["nominal", "nominal"]
 
 
@@ -77,8 +78,7 @@ def test_single_fault_is_identified_within_a_tenth_of_a_percent_on_reduced_model
 
 @pytest.fixture(scope="module")
 def throw_messages_of_one_recording():
-    messages, _ = read_messages(RECORDINGS / "left_bolt.mcap")
-    return messages
+    return load_recording(RECORDINGS / "left_bolt.mcap").messages
 
 
 def _first_throw_span(messages):
