@@ -57,8 +57,9 @@ class SwitchSimulation:
     """Advances one plant through throws (alternating, starting left to right from 1.00 m)."""
 
     def __init__(self, plant: Plant, *, rate_hz: float = 50.0, faults: dict[str, float] | None = None,
-                 noise_rel: float = 0.0, seed: int = 0):
+                 noise_rel: float = 0.0, seed: int = 0, start_ns: int = 0):
         self.plant = plant
+        self.start_ns = int(start_ns)
         self.rate_hz = float(rate_hz)
         self.faults = dict(faults or {})
         self.noise_rel = float(noise_rel)
@@ -113,5 +114,5 @@ class SwitchSimulation:
         return samples
 
     def time_ns(self, sample_index: int) -> int:
-        """Integer nanoseconds of a sample index from the simulation's start."""
-        return round(sample_index * 1_000_000_000 / self.rate_hz)
+        """Integer nanoseconds of a sample index: start_ns plus its time from the simulation's start."""
+        return self.start_ns + round(sample_index * 1_000_000_000 / self.rate_hz)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import threading
 from collections.abc import Callable
 
 from schemas import check_fault_value, check_switch_id
@@ -125,6 +126,125 @@ def cmd_diagnose(args) -> int:
     return diagnose_file(args.recording, model=args.model, jsonl=args.jsonl)
 
 
+# -- live services (DESIGN.md section 4) ----------------------------------------------------
+def _live(run: Callable[[object, threading.Event], int | None], args) -> int:
+    """Run a service with logging, SIGINT/SIGTERM handling and one-line errors."""
+    from services.bus import BusError, BusOptions, configure_logging, stop_on_signals
+
+    configure_logging(args.verbose)
+    try:
+        options = BusOptions.from_args(args)
+        with stop_on_signals() as stop:
+            run(options, stop)
+    except (BusError, OSError, ValueError) as error:
+        return _fail(str(error))
+    return 0
+
+
+def cmd_router(args) -> int:
+    from dataclasses import replace
+
+    from services.router import run_router
+
+    def run(options, stop):
+        if not options.listen and not options.config_file:
+            options = replace(options, listen=("tcp/127.0.0.1:7447",))
+        run_router(replace(options, mode="router"), stop=stop)
+    return _live(run, args)
+
+
+def _scenario_from_args(args):
+    """The --scenario file, or a scenario built from the simple options."""
+    from schemas.scenario import Scenario, ScenarioError, SwitchPlan, load_scenario
+
+    simple = {"switches": args.switches, "switch_id": args.switch_id or None, "throws": args.throws,
+              "interval": args.interval, "fault": args.fault or None, "noise": args.noise, "rate": args.rate}
+    if args.scenario:
+        given = [f"--{name.replace('_', '-')}" for name, value in simple.items() if value is not None]
+        if given:
+            raise ScenarioError(f"--scenario excludes {', '.join(given)} (the file says it)")
+        return load_scenario(args.scenario)
+    if args.switch_id and args.switches is not None:
+        raise ScenarioError("give --switches N or --switch-id ID (repeatable), not both")
+    ids = args.switch_id or [f"sw{k + 1}" for k in range(args.switches or 1)]
+    if len(set(ids)) != len(ids):
+        raise ScenarioError(f"--switch-id repeats: {ids}")
+    plans = [SwitchPlan(id=i, throws=args.throws or 1_000_000, faults=dict(args.fault)) for i in ids]
+    return Scenario(interval_s=args.interval or 10.0, rate_hz=args.rate or 50.0, noise=args.noise or 0.0,
+                    seed=args.seed, switches=plans)
+
+
+def cmd_simulator(args) -> int:
+    from services.simulator import run_simulator
+
+    return _live(lambda options, stop: run_simulator(options, _scenario_from_args(args), speed=args.speed,
+                                                     stop=stop), args)
+
+
+def cmd_diagnoser(args) -> int:
+    from services.diagnoser import run_diagnoser
+
+    return _live(lambda options, stop: run_diagnoser(options, model=args.model, shard=args.shard, stop=stop), args)
+
+
+def cmd_recorder(args) -> int:
+    from services.recorder import run_recorder
+
+    return _live(lambda options, stop: run_recorder(options, args.out, stop=stop), args)
+
+
+def cmd_replay(args) -> int:
+    from services.mcap_io import load_recording
+    from services.replay import PLANT_KINDS, ReplayPlan, run_replay
+
+    try:
+        recording = load_recording(args.recording)
+    except OSError as error:
+        return _fail(f"cannot read {args.recording}: {error.strerror}")
+    note = recording.note()
+    if note:
+        print(f"railswitch replay: {args.recording}: {note}", file=sys.stderr)
+    kinds = PLANT_KINDS + (("diagnosis",) if args.with_diagnosis else ())
+    plan = ReplayPlan.of(recording.records, kinds)
+    if not plan.records:
+        print(f"railswitch replay: {args.recording}: nothing to replay", file=sys.stderr)
+        return 1
+    speed = None if args.fast else args.speed
+    return _live(lambda options, stop: run_replay(options, plan, speed=speed, loops=args.loop, stop=stop), args)
+
+
+def cmd_watch(args) -> int:
+    from services.watch import run_watch
+
+    return _live(lambda options, stop: run_watch(options, switch_ids=args.switch_id, count=args.count,
+                                                 duration_s=args.duration, jsonl=args.jsonl, stop=stop), args)
+
+
+def cmd_demo(args) -> int:
+    from services.demo import run_demo
+
+    return run_demo(args)
+
+
+def shard(text: str) -> tuple[int, int]:
+    from services.diagnoser import parse_shard
+
+    try:
+        return parse_shard(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def _service(commands, name: str, help_text: str, handler, *, default_mode: str | None = None):
+    from services.bus import add_bus_arguments
+
+    parser = commands.add_parser(name, help=help_text)
+    add_bus_arguments(parser, default_mode=default_mode)
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    parser.set_defaults(handler=handler)
+    return parser
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="railswitch", description="Online diagnosis of railway switches.")
     commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -165,6 +285,59 @@ def build_parser() -> argparse.ArgumentParser:
     diagnose.add_argument("--model", choices=["poly", "nn", "causal"], default="poly", help="reduced rail model")
     diagnose.add_argument("--jsonl", action="store_true", help="one Diagnosis JSON object per throw on stdout")
     diagnose.set_defaults(handler=cmd_diagnose)
+
+    _service(commands, "router", "a Zenoh router (eclipse-zenoh in router mode) listening on --listen "
+             "(default tcp/127.0.0.1:7447)", cmd_router)
+
+    simulator = _service(commands, "simulator", "simulated switches publishing motor samples, throws and truth",
+                         cmd_simulator)
+    simulator.add_argument("--scenario", metavar="F.toml", help="schedule of switches, throws and fault changes")
+    simulator.add_argument("--switches", type=bounded(int, 1, 10_000), default=None, help="switches sw1 … swN")
+    simulator.add_argument("--switch-id", type=switch_id, action="append", default=[], help="a switch (repeatable)")
+    simulator.add_argument("--throws", type=bounded(int, 1, 1_000_000), default=None,
+                           help="throws per switch (default: until stopped)")
+    simulator.add_argument("--interval", type=bounded(float, 7.5, 86_400.0, "s"), default=None,
+                           help="simulated seconds between a switch's throw starts (default 10)")
+    simulator.add_argument("--fault", type=fault_assignment, action="append", default=[], metavar="NAME=VALUE",
+                           help="fault injected in every switch from the start (repeatable)")
+    simulator.add_argument("--noise", type=bounded(float, 0.0, 0.5), default=None, metavar="REL")
+    simulator.add_argument("--seed", type=bounded(int, 0, 2**32 - 1), default=0)
+    simulator.add_argument("--rate", type=bounded(float, 1.0, 1000.0, "samples/s"), default=None,
+                           help="samples per second (default 50)")
+    simulator.add_argument("--speed", type=bounded(float, 0.01, 10_000.0, "x real time"), default=1.0)
+
+    diagnoser = _service(commands, "diagnoser", "diagnose every finished throw on the bus", cmd_diagnoser)
+    diagnoser.add_argument("--model", choices=["poly", "nn", "causal"], default="poly", help="reduced rail model")
+    diagnoser.add_argument("--shard", type=shard, default=(1, 1), metavar="K/N",
+                           help="serve only switches in shard K of N (stable hash of the switch id)")
+
+    recorder = _service(commands, "recorder", "record railswitch/** to an MCAP file", cmd_recorder)
+    recorder.add_argument("--out", required=True, metavar="F.mcap")
+
+    replay = _service(commands, "replay", "republish a recording's motor, throw and truth messages", cmd_replay)
+    replay.add_argument("recording", metavar="F.mcap")
+    pace = replay.add_mutually_exclusive_group()
+    pace.add_argument("--speed", type=bounded(float, 0.01, 10_000.0, "x real time"), default=1.0)
+    pace.add_argument("--fast", action="store_true", help="as fast as possible")
+    replay.add_argument("--loop", type=bounded(int, 0, 1_000_000), default=1, metavar="N",
+                        help="passes over the recording (0: until stopped)")
+    replay.add_argument("--with-diagnosis", action="store_true", help="also republish recorded diagnoses")
+
+    watch = _service(commands, "watch", "live table of diagnoses", cmd_watch)
+    watch.add_argument("--switch-id", type=switch_id, action="append", default=[], help="only this switch (repeatable)")
+    watch.add_argument("--jsonl", action="store_true", help="one Diagnosis JSON object per line")
+    watch.add_argument("--count", type=bounded(int, 1, 10**9), default=None, help="exit after N diagnoses")
+    watch.add_argument("--duration", type=bounded(float, 0.1, 10**9, "s"), default=None, help="exit after S seconds")
+
+    demo = commands.add_parser("demo", help="router, simulator, diagnoser and recorder with a live table and summary")
+    demo.add_argument("--switches", type=bounded(int, 1, 50), default=4)
+    demo.add_argument("--throws", type=bounded(int, 2, 1000), default=4, help="throws per switch")
+    demo.add_argument("--speed", type=bounded(float, 0.1, 1000.0, "x real time"), default=4.0)
+    demo.add_argument("--out", default="demo.mcap", metavar="F.mcap")
+    demo.add_argument("--listen", default=None, metavar="ENDPOINT",
+                      help="endpoint of the embedded router (default: a free loopback port)")
+    demo.add_argument("--model", choices=["poly", "nn", "causal"], default="poly")
+    demo.set_defaults(handler=cmd_demo)
     return parser
 
 

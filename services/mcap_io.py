@@ -104,6 +104,10 @@ class RecordingWriter:
             if self._atomic:
                 self._file.unlink(missing_ok=True)
 
+    def flush(self) -> None:
+        """Push finished chunks to the operating system, so a killed process loses only the open chunk."""
+        self._stream.flush()
+
     def write(self, key: str, message: Message, log_time_ns: int | None = None) -> None:
         """Append message on the channel of key; log time defaults to the message's t_ns."""
         channel_id, model_cls, switch_id = self._channels.get(key) or self._register(key)
@@ -220,15 +224,19 @@ def _describe_damage(error: Exception, position: int, size: int) -> str:
 class Recording:
     """Every message a recording holds, with what could not be read."""
 
-    messages: list[Message]
+    records: list[RecordedMessage]
     damage: str | None
     skipped: Counter[str]
+
+    @property
+    def messages(self) -> list[Message]:
+        return [record.message for record in self.records]
 
     def note(self) -> str | None:
         """One line on damage and skipped messages, or None when the file was clean."""
         notes = []
         if self.damage:
-            notes.append(f"{self.damage}; recovered {len(self.messages)} messages before it")
+            notes.append(f"{self.damage}; recovered {len(self.records)} messages before it")
         if self.skipped:
             notes.append("skipped " + ", ".join(f"{n} ({reason})" for reason, n in self.skipped.items()))
         return "; ".join(notes) or None
@@ -237,8 +245,8 @@ class Recording:
 def load_recording(path: str | os.PathLike[str]) -> Recording:
     """All decoded messages of a recording, read once, with its damage and skip counts."""
     reader = RecordingReader(path)
-    messages = [record.message for record in reader]
-    return Recording(messages, reader.damage, reader.skipped)
+    records = list(reader)
+    return Recording(records, reader.damage, reader.skipped)
 
 
 def read_recording(path: str | os.PathLike[str]) -> Iterator[RecordedMessage]:

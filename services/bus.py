@@ -1,0 +1,226 @@
+"""The one Zenoh helper: sessions from command-line options or a config file, publishers and inboxes.
+
+Every live service opens its session here, so mode, endpoints, scouting and a Zenoh
+config file (TLS, authentication, access control) behave the same everywhere.
+Subscriber callbacks only queue raw payloads; services decode in their own loop.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import queue
+import signal
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import zenoh
+
+from schemas import Message, encode
+
+log = logging.getLogger("railswitch.bus")
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+MODES = ("client", "peer", "router")
+SERVICE_PREFIX = "railswitch/service"
+RETRY_S = 1.0
+
+
+class BusError(RuntimeError):
+    """A session cannot be configured or opened; the message is one line."""
+
+
+@dataclass(frozen=True)
+class BusOptions:
+    """How a service joins the bus.
+
+    mode None keeps a config file's mode, else client. Without --connect a client or peer
+    connects to DEFAULT_ENDPOINT unless the config file names endpoints; multicast scouting
+    is off unless asked for, whatever the file says.
+    """
+
+    mode: str | None = None
+    connect: tuple[str, ...] = ()
+    listen: tuple[str, ...] = ()
+    config_file: str | None = None
+    multicast_scouting: bool = False
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> BusOptions:
+        return cls(mode=args.mode, connect=tuple(args.connect), listen=tuple(args.listen),
+                   config_file=args.zenoh_config or os.environ.get("ZENOH_CONFIG") or None,
+                   multicast_scouting=args.multicast_scouting)
+
+
+def add_bus_arguments(parser: argparse.ArgumentParser, *, default_mode: str | None = None) -> None:
+    """The session options every live service takes."""
+    group = parser.add_argument_group("bus")
+    group.add_argument("--mode", choices=MODES, default=default_mode,
+                       help="Zenoh mode (default: client, or the config file's)")
+    group.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                       help=f"endpoint to connect to, e.g. tcp/host:7447 (repeatable; default {DEFAULT_ENDPOINT})")
+    group.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
+                       help="endpoint to listen on (repeatable)")
+    group.add_argument("--zenoh-config", metavar="FILE", default=None,
+                       help="Zenoh JSON5 config file for TLS, authentication, access control (or $ZENOH_CONFIG)")
+    group.add_argument("--multicast-scouting", action="store_true", help="discover peers by multicast (off by default)")
+
+
+def zenoh_config(options: BusOptions) -> zenoh.Config:
+    """The session config: the file (if any), then the options on top."""
+    if options.config_file:
+        try:
+            config = zenoh.Config.from_file(options.config_file)
+        except (zenoh.ZError, OSError, ValueError) as error:
+            raise BusError(f"cannot read Zenoh config {options.config_file}: {_one_line(error)}") from None
+    else:
+        config = zenoh.Config()
+    mode = options.mode or (None if options.config_file else "client")
+    if mode is not None:
+        config.insert_json5("mode", json.dumps(mode))
+    mode = json.loads(config.get_json("mode"))
+    connect = list(options.connect)
+    if not connect and mode != "router" and not json.loads(config.get_json("connect/endpoints") or "[]"):
+        connect = [DEFAULT_ENDPOINT]
+    try:
+        if connect:
+            config.insert_json5("connect/endpoints", json.dumps(connect))
+        if options.listen:
+            config.insert_json5("listen/endpoints", json.dumps(list(options.listen)))
+    except zenoh.ZError as error:
+        raise BusError(f"bad endpoint in {connect + list(options.listen)}: {_one_line(error)}") from None
+    config.insert_json5("scouting/multicast/enabled", json.dumps(options.multicast_scouting))
+    if mode != "router":
+        # Fail fast inside open() so that the retry loop below stays interruptible; once
+        # connected, Zenoh itself reconnects when the router comes back.
+        config.insert_json5("connect/timeout_ms", "2000")
+        config.insert_json5("connect/exit_on_failure", "true")
+    return config
+
+
+def _one_line(error: BaseException) -> str:
+    text = " ".join(str(error).split())
+    return text.split(" at /")[0][:300]  # Zenoh appends the Rust source location
+
+
+def open_session(options: BusOptions, *, retry: bool = True, wait_s: float | None = None,
+                 stop: threading.Event | None = None) -> zenoh.Session:
+    """Open a session, retrying every second while no router answers (until wait_s or stop)."""
+    config = zenoh_config(options)
+    deadline = None if wait_s is None else time.monotonic() + wait_s
+    announced = False
+    while True:
+        try:
+            return zenoh.open(config)
+        except zenoh.ZError as error:
+            reason = _one_line(error)
+            if not retry or "connect" not in reason.lower() or (deadline and time.monotonic() > deadline):
+                raise BusError(f"cannot open a Zenoh session: {reason}") from None
+            if not announced:
+                log.warning("waiting for the bus (%s); retrying every %.0f s", reason, RETRY_S)
+                announced = True
+            if stop is None:
+                time.sleep(RETRY_S)
+            elif stop.wait(RETRY_S):
+                raise BusError("stopped while waiting for the bus") from None
+            config = zenoh_config(options)  # a config is consumed by open()
+
+
+def instance_name() -> str:
+    """This process, as a key chunk: host-pid."""
+    host = "".join(c if c.isalnum() or c in "-_" else "-" for c in socket.gethostname()) or "host"
+    return f"{host}-{os.getpid()}"
+
+
+def declare_service(session: zenoh.Session, name: str) -> zenoh.LivelinessToken:
+    """Liveliness token railswitch/service/<name>/<instance> (DESIGN.md section 4)."""
+    return session.liveliness().declare_token(f"{SERVICE_PREFIX}/{name}/{instance_name()}")
+
+
+class Publishers:
+    """One declared publisher per key, JSON-encoded, blocking rather than dropping under congestion."""
+
+    def __init__(self, session: zenoh.Session, *, congestion: zenoh.CongestionControl = zenoh.CongestionControl.BLOCK):
+        self._session = session
+        self._congestion = congestion
+        self._publishers: dict[str, zenoh.Publisher] = {}
+        self.published = 0
+
+    def put(self, key: str, message: Message | bytes) -> None:
+        publisher = self._publishers.get(key)
+        if publisher is None:
+            publisher = self._session.declare_publisher(key, encoding=zenoh.Encoding.APPLICATION_JSON,
+                                                        congestion_control=self._congestion)
+            self._publishers[key] = publisher
+        publisher.put(message if isinstance(message, bytes) else encode(message))
+        self.published += 1
+
+
+class Received(NamedTuple):
+    """One raw sample as it arrived: key, payload and local arrival time (monotonic seconds)."""
+
+    key: str
+    payload: bytes
+    arrived_s: float
+
+
+class Inbox:
+    """Subscriptions whose callbacks only enqueue; the service drains the queue in its own thread."""
+
+    def __init__(self, session: zenoh.Session, keys: list[str]):
+        self.queue: queue.SimpleQueue[Received] = queue.SimpleQueue()
+        self._subscribers = [session.declare_subscriber(key, self._on_sample) for key in keys]
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        self.queue.put(Received(str(sample.key_expr), sample.payload.to_bytes(), time.monotonic()))
+
+    def get(self, timeout_s: float) -> Received | None:
+        try:
+            return self.queue.get(timeout=timeout_s)
+        except queue.Empty:
+            return None
+
+    def drain(self, stop: threading.Event, poll_s: float = 0.2) -> Iterator[Received | None]:
+        """Received samples (None after poll_s without any) until stop is set; then the
+        subscriptions end and what is still queued comes out before the iterator does."""
+        while not stop.is_set():
+            yield self.get(poll_s)
+        self.close()
+        while (item := self.get(0.0)) is not None:
+            yield item
+
+    def close(self) -> None:
+        for subscriber in self._subscribers:
+            subscriber.undeclare()
+        self._subscribers = []
+
+
+@contextmanager
+def stop_on_signals() -> Iterator[threading.Event]:
+    """An Event set by SIGINT or SIGTERM, so services finish their work (and files) cleanly."""
+    stop = threading.Event()
+    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+
+    def handler(signum, frame):  # noqa: ARG001 - signal API
+        stop.set()
+
+    for sig in previous:
+        signal.signal(sig, handler)
+    try:
+        yield stop
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+
+
+def configure_logging(verbose: bool = False) -> None:
+    """One line per event on stderr, with the service's name."""
+    logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO,
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s", datefmt="%H:%M:%S")
+
