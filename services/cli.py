@@ -312,7 +312,8 @@ def build_parser() -> argparse.ArgumentParser:
                            help="serve only switches in shard K of N (stable hash of the switch id)")
 
     recorder = _service(commands, "recorder", "record railswitch/** to an MCAP file", cmd_recorder)
-    recorder.add_argument("--out", required=True, metavar="F.mcap")
+    recorder.add_argument("--out", required=True, metavar="F.mcap",
+                          help="file to write; {time} in the name becomes the UTC start time")
 
     replay = _service(commands, "replay", "republish a recording's motor, throw and truth messages", cmd_replay)
     replay.add_argument("recording", metavar="F.mcap")

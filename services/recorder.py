@@ -64,9 +64,14 @@ class Recorder:
             log.warning("rejected a message on %s: %s (further ones are counted)", key, reason)
 
 
-def run_recorder(options: BusOptions, out: str | Path, *, stop: threading.Event) -> int:
+def output_path(pattern: str) -> Path:
+    """--out with `{time}` replaced by the UTC start time, so a restarted recorder never overwrites."""
+    return Path(pattern.replace("{time}", time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())))
+
+
+def run_recorder(options: BusOptions, out: str, *, stop: threading.Event) -> int:
     """Record until stop is set; the file is finished in every case. Returns the messages written."""
-    with RecordingWriter(out, atomic=False) as writer:  # fails here, before connecting, if out is unwritable
+    with RecordingWriter(output_path(out), atomic=False) as writer:  # fails here, before connecting, if out is unwritable
         session = open_session(options, stop=stop)
         try:
             inbox = Inbox(session, ["railswitch/**"])

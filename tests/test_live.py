@@ -1,0 +1,159 @@
+"""End to end with real processes: router, simulator, diagnoser, recorder, replay and demo on loopback."""
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+
+from schemas import FaultCommand, encode, key_expr
+from tests.live import (
+    ROOT,
+    DiagnosisCollector,
+    Services,
+    client,
+    jsonl_decisions,
+    start_router,
+    wait_for,
+    wait_ready,
+)
+
+SCENARIO = """
+interval_s = 10.0
+
+[[switches]]
+id = "healthy"
+throws = 3
+
+[[switches]]
+id = "faulty"
+throws = 3
+faults = { left_bolt_offset = 0.05 }
+"""
+SPEED = "20"
+
+
+@dataclass(frozen=True)
+class LiveRun:
+    recording: Path
+    decisions: dict[tuple[str, int], str]
+    recorder_exit: int
+
+
+@pytest.fixture(scope="module")
+def live_run(tmp_path_factory) -> LiveRun:
+    """Two switches (a left bolt offset of 50 mm on one), three throws each, at 20x real time."""
+    work = tmp_path_factory.mktemp("live")
+    scenario = work / "scenario.toml"
+    scenario.write_text(SCENARIO)
+    recording = work / "live.mcap"
+    with Services(work) as services:
+        endpoint = start_router(services)
+        session = client(endpoint)
+        try:
+            collector = DiagnosisCollector(session)
+            services.start("diagnoser", "--connect", endpoint)
+            recorder = services.start("recorder", "--connect", endpoint, "--out", str(recording))
+            wait_ready(session, "diagnoser", "recorder")
+            simulator = services.start("simulator", "--connect", endpoint, "--scenario", str(scenario),
+                                       "--speed", SPEED)
+            assert simulator.wait(120) == 0, services.log(simulator)
+            wait_for(lambda: len(collector.received) >= 6, 60, "six diagnoses")
+            time.sleep(0.5)  # the recorder takes the last diagnoses off the bus too
+            recorder.send_signal(signal.SIGTERM)
+            recorder_exit = recorder.wait(30)
+        finally:
+            session.close()
+    return LiveRun(recording, collector.decisions(), recorder_exit)
+
+
+def test_live_diagnoses_match_the_injected_faults(live_run):
+    assert live_run.decisions == {**{("healthy", k): "nominal" for k in range(3)},
+                                  **{("faulty", k): "left_bolt" for k in range(3)}}
+
+
+def test_sigterm_leaves_a_complete_recording_with_every_channel(live_run):
+    assert live_run.recorder_exit == 0
+    with open(live_run.recording, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None  # finished: summary section written
+        topics = {channel.topic for channel in summary.channels.values()}
+        counts = {}
+        for _, channel, _ in reader.iter_messages():
+            counts[channel.topic] = counts.get(channel.topic, 0) + 1
+    expected = {key_expr(s, kind) for s in ("healthy", "faulty") for kind in ("motor", "throw", "truth", "diagnosis")}
+    assert expected <= topics
+    assert all(counts[key_expr(s, "diagnosis")] == 3 for s in ("healthy", "faulty"))
+    assert all(counts[key_expr(s, "throw")] == 6 for s in ("healthy", "faulty"))
+
+
+def test_recording_has_no_missing_samples(live_run):
+    from services.mcap_io import load_recording
+
+    recording = load_recording(live_run.recording)
+    assert recording.note() is None
+    for switch in ("healthy", "faulty"):
+        seqs = [m.seq for m in recording.messages if getattr(m, "seq", None) is not None and m.switch_id == switch]
+        assert seqs == list(range(len(seqs))) and len(seqs) > 3 * 350
+
+
+def test_replay_into_a_fresh_diagnoser_and_offline_diagnosis_agree_with_live(live_run, tmp_path):
+    with Services(tmp_path) as services:
+        endpoint = start_router(services)
+        session = client(endpoint)
+        try:
+            collector = DiagnosisCollector(session)
+            services.start("diagnoser", "--connect", endpoint)
+            wait_ready(session, "diagnoser")
+            replay = services.start("replay", str(live_run.recording), "--connect", endpoint, "--fast")
+            assert replay.wait(120) == 0, services.log(replay)
+            wait_for(lambda: len(collector.received) >= 6, 60, "six diagnoses of the replay")
+        finally:
+            session.close()
+    offline = subprocess.run([sys.executable, "-m", "services.cli", "diagnose", str(live_run.recording), "--jsonl"],
+                             cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert offline.returncode == 0, offline.stderr
+    assert collector.decisions() == live_run.decisions
+    assert jsonl_decisions(offline.stdout) == live_run.decisions
+
+
+def test_fault_command_changes_the_next_throws_diagnosis(tmp_path):
+    with Services(tmp_path) as services:
+        endpoint = start_router(services)
+        session = client(endpoint)
+        try:
+            collector = DiagnosisCollector(session)
+            services.start("diagnoser", "--connect", endpoint)
+            wait_ready(session, "diagnoser")
+            simulator = services.start("simulator", "--connect", endpoint, "--switch-id", "sw7", "--throws", "5",
+                                       "--speed", "5")
+            wait_for(lambda: len(collector.received) >= 1, 120, "the first diagnosis")
+            command = FaultCommand(switch_id="sw7", params={"bearing_friction": 6000.0})
+            session.put(key_expr("sw7", "inject"), encode(command))
+            sent_during = len(collector.received)  # throws diagnosed when the command went out
+            assert simulator.wait(120) == 0, services.log(simulator)
+            wait_for(lambda: len(collector.received) >= 5, 60, "five diagnoses")
+        finally:
+            session.close()
+    decisions = [collector.decisions()["sw7", k] for k in range(5)]
+    assert decisions[0] == "nominal"
+    # The throw running when the command arrived was computed before it; the one after is faulty.
+    assert decisions[sent_during + 1:] == ["missing_bearing"] * (4 - sent_during)
+
+
+def test_demo_with_small_settings_exits_0_and_writes_its_recording(tmp_path):
+    out = tmp_path / "demo.mcap"
+    result = subprocess.run([sys.executable, "-m", "services.cli", "demo", "--switches", "2", "--throws", "2",
+                             "--speed", "20", "--out", str(out)], cwd=ROOT, capture_output=True, text=True,
+                            timeout=600)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "4 of 4 throws decided as expected" in result.stdout
+    with open(out, "rb") as f:
+        topics = {channel.topic for _, channel, _ in make_reader(f).iter_messages()}
+    assert {key_expr(s, "diagnosis") for s in ("sw1", "sw2")} <= topics
