@@ -17,6 +17,7 @@ end of the previous throw's fit, or the closed position.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -92,7 +93,8 @@ def _bounds(names) -> tuple[np.ndarray, np.ndarray]:
 class ThrowEstimator:
     """Fits every hypothesis to throws of `samples` samples; build once, call per throw."""
 
-    def __init__(self, reduced: ReducedSwitch, samples: int, compiled: bool = True):
+    def __init__(self, reduced: ReducedSwitch, samples: int, compiled: bool = True, cache_dir: Path | None = None):
+        """`cache_dir` keeps the compiled Functions for later processes (see `jit_compiled`)."""
         self.reduced = reduced
         self.samples = samples
         theta = ca.MX.sym("theta", len(FAULT_ORDER))
@@ -115,7 +117,7 @@ class ThrowEstimator:
         functions.append(cost.map(len(_GRID_POINTS)))  # every grid start in one call
         self.compiled = False
         if compiled:
-            functions, flags = zip(*(jit_compiled(f) for f in functions))
+            functions, flags = zip(*(jit_compiled(f, cache_dir) for f in functions))
             self.compiled = all(flags)
         self._residual_fn, self._jacobian_fn, self._directional_fn, self._grid_fn = functions
 

@@ -8,10 +8,15 @@ have exact derivatives with respect to the fault parameters.
 """
 from __future__ import annotations
 
+import hashlib
 import os
+import platform
+import shutil
+import subprocess
 import tempfile
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
+from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -58,8 +63,20 @@ def stock_rail_force(params: ReducedParams, x, v):
     return left - right
 
 
-def jit_compiled(function: ca.Function) -> tuple[ca.Function, bool]:
-    """The same Function compiled to machine code by CasADi's JIT (needs a C compiler), else itself."""
+CACHE_FLAGS = ("-O2", "-shared", "-fPIC")  # flags of the cached shared libraries (part of their key)
+
+
+def jit_compiled(function: ca.Function, cache_dir: Path | None = None) -> tuple[ca.Function, bool]:
+    """The same Function compiled to machine code (needs a C compiler), else itself.
+
+    With `cache_dir`, the machine code is kept there and later calls, in any process, load it instead
+    of compiling again; without one, or when the cache fails, CasADi's JIT compiles it for this process.
+    """
+    if cache_dir is not None:
+        try:
+            return cached_external(function, Path(cache_dir)), True
+        except (OSError, RuntimeError, subprocess.SubprocessError):
+            pass  # no compiler, or the cache is not writable: compiled for this process only
     try:
         symbols = function.mx_in()
         scratch = tempfile.gettempdir()  # CasADi's intermediate files stay out of the user's directory
@@ -72,6 +89,30 @@ def jit_compiled(function: ca.Function) -> tuple[ca.Function, bool]:
         return compiled, True
     except RuntimeError:
         return function, False
+
+
+def cached_external(function: ca.Function, cache_dir: Path) -> ca.Function:
+    """`function` from `<cache_dir>/<key>.so`, compiled from its generated C code first if not there yet.
+
+    The key hashes the C source, CasADi's version, the machine and CACHE_FLAGS, so a changed model,
+    CasADi or flag set gets its own library. A library is compiled under a temporary name and renamed
+    into place (atomic), so processes compiling the same one at once never load a partial file.
+    """
+    generator = ca.CodeGenerator("railswitch_cache.c", {"with_header": False})
+    generator.add(function)
+    source = generator.dump()
+    key = hashlib.sha256("\n".join([ca.__version__, platform.machine(), *CACHE_FLAGS, source]).encode()).hexdigest()
+    library = cache_dir / f"{key[:32]}.so"
+    if not library.exists():
+        compiler = shutil.which("gcc") or shutil.which("cc")
+        if compiler is None:
+            raise FileNotFoundError("no C compiler (gcc or cc) on PATH")
+        with tempfile.TemporaryDirectory(dir=cache_dir) as scratch:  # same file system: the rename is atomic
+            c_file, partial = Path(scratch) / "railswitch_cache.c", Path(scratch) / "library.so"
+            c_file.write_text(source)
+            subprocess.run([compiler, *CACHE_FLAGS, str(c_file), "-o", str(partial)], check=True, capture_output=True)
+            os.replace(partial, library)
+    return ca.external(function.name(), str(library))
 
 
 class ReducedSwitch:

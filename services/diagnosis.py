@@ -5,10 +5,12 @@ estimator per representation, sample rate and throw length, built once per proce
 """
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 
@@ -48,10 +50,20 @@ class Diagnoser:
         self._estimator = lru_cache(maxsize=8)(self._build_estimator)
 
     def _build_estimator(self, rate_hz: float, samples: int) -> tuple[ThrowEstimator, dict]:
-        """The estimator for throws of `samples` samples at `rate_hz`, commissioned on the healthy plant."""
+        """The estimator for throws of `samples` samples at `rate_hz`, commissioned on the healthy plant.
+
+        Its machine code is compiled once per machine into $RAILSWITCH_CACHE, else the user's cache
+        directory ($XDG_CACHE_HOME or ~/.cache, then railswitch); where that cannot be made, once per process.
+        """
         representation, weights, _ = load(self.model)
         reduced = ReducedSwitch(representation, weights, ReducedParams(substeps=DIAGNOSIS_SUBSTEPS), rate_hz=rate_hz)
-        estimator = ThrowEstimator(reduced, samples, compiled=self.compiled)
+        try:
+            cache_dir = Path(os.environ.get("RAILSWITCH_CACHE")
+                             or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "railswitch")
+            cache_dir.mkdir(parents=True, exist_ok=True)
+        except (OSError, RuntimeError):  # RuntimeError: no home directory
+            cache_dir = None
+        estimator = ThrowEstimator(reduced, samples, compiled=self.compiled, cache_dir=cache_dir)
         return estimator, commissioning_gains(estimator, Plant())
 
     def warm_up(self, rate_hz: float = 50.0, samples: int = 350) -> None:

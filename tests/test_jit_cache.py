@@ -1,0 +1,75 @@
+"""Compiled CasADi Functions cached on disk: compiled once, loaded by later calls, same numbers."""
+import shutil
+
+import casadi as ca
+import numpy as np
+import pytest
+
+import models.params as shipped
+from models.estimation import Measurement, ThrowEstimator
+from models.faults import fault_vector
+from models.reduced import ReducedSwitch, jit_compiled
+from models.reference import throw_reference
+
+needs_compiler = pytest.mark.skipif(shutil.which("gcc") is None and shutil.which("cc") is None,
+                                    reason="no C compiler: nothing is cached")
+
+
+def small_function() -> ca.Function:
+    """Two inputs, a dense and a sparse (Jacobian) output, as the estimator's Functions have."""
+    x, a = ca.MX.sym("x", 3), ca.MX.sym("a", 2)
+    y = ca.vertcat(ca.sin(x[0]) * a[0], x[1] * x[2] + a[1], ca.exp(-x[2]))
+    return ca.Function("small", [x, a], [y, ca.jacobian(y, x)], ["x", "a"], ["y", "dy_dx"])
+
+
+@needs_compiler
+def test_first_call_compiles_one_library_and_the_second_loads_it_with_the_same_numbers(tmp_path):
+    function = small_function()
+    x, a = np.array([0.3, -1.2, 0.7]), np.array([2.0, 0.5])
+    first, compiled = jit_compiled(function, tmp_path)
+    libraries = sorted(tmp_path.iterdir())
+    assert compiled and [p.suffix for p in libraries] == [".so"]
+    stamp = libraries[0].stat().st_mtime_ns
+    second, compiled = jit_compiled(function, tmp_path)
+    assert compiled and sorted(tmp_path.iterdir()) == libraries and libraries[0].stat().st_mtime_ns == stamp
+    for loaded in (first, second):
+        assert loaded.class_name() == "External"  # the cached library, not CasADi's JIT
+        assert loaded.name_in() == ["x", "a"] and loaded.name_out() == ["y", "dy_dx"]
+        assert loaded.sparsity_out(1) == function.sparsity_out(1)
+        for got, expected in zip(loaded(x, a), function(x, a)):
+            np.testing.assert_allclose(np.asarray(got), np.asarray(expected), rtol=1e-14, atol=0.0)
+
+
+def test_a_missing_cache_directory_is_not_created_and_the_function_still_evaluates(tmp_path):
+    function = small_function()
+    compiled_function, _ = jit_compiled(function, tmp_path / "missing")
+    got = compiled_function(np.array([0.3, -1.2, 0.7]), np.array([2.0, 0.5]))[0]
+    np.testing.assert_allclose(np.asarray(got), np.asarray(function([0.3, -1.2, 0.7], [2.0, 0.5])[0]), rtol=1e-14)
+    assert not (tmp_path / "missing").exists()
+
+
+@needs_compiler
+def test_estimator_built_from_the_cache_gives_the_uncompiled_residual_and_derivatives(tmp_path):
+    representation, weights, _ = shipped.load("poly")
+    reduced = ReducedSwitch(representation, weights)
+    samples, reference = 50, throw_reference("left_to_right")
+    uncompiled = ThrowEstimator(reduced, samples, compiled=False)
+    blank = np.zeros(samples)
+    y = uncompiled.simulate(Measurement(reference, blank, blank, blank, 0.0, 1.0), {"left_bolt_offset": 0.05})
+    m = Measurement(reference, y["current_a"], y["angle_rad"], y["velocity_rad_s"], 0.0, 1.0)
+    theta = fault_vector({"left_bolt_offset": 0.02, "bearing_friction": 1e3})
+
+    def evaluations(estimator: ThrowEstimator) -> list:
+        """Every compiled Function once: residual, directional derivative, Jacobian columns, grid costs."""
+        data = estimator._data(m)
+        grid = np.tile(theta[:, None], estimator._grid_fn.size2_in(0))
+        out = [estimator._residuals(theta, data), *estimator._linearise(theta, data, [0]),
+               *estimator._linearise(theta, data, [0, 2]), estimator._grid_fn(grid, *data)]
+        return [np.asarray(value) for value in out]
+
+    expected = evaluations(uncompiled)
+    for build in ("compiles", "loads"):
+        cached = ThrowEstimator(reduced, samples, cache_dir=tmp_path)
+        assert cached._residual_fn.class_name() == "External" and len(list(tmp_path.glob("*.so"))) == 4, build
+        for got, value in zip(evaluations(cached), expected):
+            np.testing.assert_allclose(got, value, rtol=1e-10, atol=1e-12 * np.max(np.abs(value)))
