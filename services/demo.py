@@ -8,8 +8,6 @@ summary can hold each decision against the injected truth.
 from __future__ import annotations
 
 import logging
-import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -27,6 +25,7 @@ from models.diagnosis import DRIVING_BOLT
 from schemas import Diagnosis, FaultTruth, MessageError, decode, parse_key_expr
 from services.bus import BusError, BusOptions, Inbox, configure_logging, open_session, stop_on_signals
 from services.mcap_io import RecordingPathError, check_writable
+from services.processes import ServiceProcesses, free_loopback_endpoint, services_alive, wait_for
 from services.watch import diagnosis_line, diagnosis_table
 
 log = logging.getLogger("railswitch.demo")
@@ -51,12 +50,6 @@ def demo_scenario(switches: int, throws: int) -> str:
         lines += ["[[switches]]", f'id = "sw{k + 1}"', f"throws = {throws}", "",
                   "[[switches.changes]]", f"throw = {throws // 2}", f"set = {{ {values} }}", ""]
     return "\n".join(lines)
-
-
-def free_loopback_endpoint() -> str:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
 
 
 def connect_endpoint(listen: str) -> str:
@@ -110,56 +103,16 @@ class Outcome:
         return table, correct
 
 
-class _Processes:
-    """The services the demo started; all of them stop (SIGINT, then kill) when it ends."""
-
-    def __init__(self, log_dir: Path):
-        self.log_dir = log_dir
-        self.running: dict[str, subprocess.Popen] = {}
-
-    def start(self, name: str, *args: str) -> subprocess.Popen:
-        stderr = open(self.log_dir / f"{name}.log", "wb")
-        process = subprocess.Popen([sys.executable, "-m", "services.cli", name, *args], stdout=subprocess.DEVNULL,
-                                   stderr=stderr, start_new_session=True)  # Ctrl-C reaches only us; we stop them
-        self.running[name] = process
-        return process
-
-    def stop(self, name: str, timeout_s: float = 20.0) -> int | None:
-        process = self.running.pop(name, None)
-        if process is None:
-            return None
-        if process.poll() is None:
-            process.send_signal(signal.SIGINT)
-            try:
-                process.wait(timeout_s)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait()
-        return process.returncode
-
-    def stop_all(self) -> None:
-        for name in ("simulator", "diagnoser", "recorder"):
-            self.stop(name)
-
-    def tail(self, name: str, lines: int = 5) -> str:
-        text = (self.log_dir / f"{name}.log").read_text(errors="replace").splitlines()
-        return "\n".join(text[-lines:])
+def _ready(router) -> bool:
+    alive = services_alive(router)
+    return alive["diagnoser"] >= 1 and alive["recorder"] >= 1
 
 
-def _wait_ready(session, names: tuple[str, ...], processes: _Processes, stop: threading.Event) -> None:
-    """Until every named service has declared its liveliness token (it is subscribed and warmed up)."""
-    deadline = time.monotonic() + READY_TIMEOUT_S
-    while not stop.is_set():
-        alive = {str(reply.ok.key_expr).split("/")[2] for reply in session.liveliness().get("railswitch/service/**")
-                 if reply.ok is not None}
-        if all(name in alive for name in names):
-            return
-        for name in names:
-            if processes.running[name].poll() is not None:
-                raise RuntimeError(f"{name} exited early:\n{processes.tail(name)}")
-        if time.monotonic() > deadline:
-            raise RuntimeError(f"services not ready after {READY_TIMEOUT_S:.0f} s: {sorted(set(names) - alive)}")
-        stop.wait(0.5)
+def _exited(processes: ServiceProcesses) -> str | None:
+    for name, _, process in processes.started:
+        if process.poll() is not None:
+            return f"{name} exited early with code {process.returncode}:\n{processes.log(process, 8)}"
+    return None
 
 
 def run_demo(args) -> int:
@@ -181,20 +134,23 @@ def run_demo(args) -> int:
         except BusError as error:
             print(f"railswitch: error: {error}", file=sys.stderr)
             return 2
-        processes = _Processes(scratch_dir)
+        processes = ServiceProcesses(scratch_dir, own_session=True)
         outcome = Outcome()
         try:
             inbox = Inbox(router, ["railswitch/*/diagnosis", "railswitch/*/truth"])
             console.print(f"router on {listen}; starting diagnoser ({args.model}) and recorder ({out})")
             processes.start("diagnoser", "--connect", connect, "--model", args.model)
             processes.start("recorder", "--connect", connect, "--out", str(out))
-            _wait_ready(router, ("diagnoser", "recorder"), processes, stop)
+            wait_for(lambda: stop.is_set() or _ready(router), READY_TIMEOUT_S, "the diagnoser and the recorder",
+                     poll_s=0.5, abort=lambda: _exited(processes))
             console.print(f"simulating {args.switches} switches x {args.throws} throws at {args.speed:g}x real time")
             simulator = processes.start("simulator", "--connect", connect, "--scenario", str(scenario),
                                         "--speed", str(args.speed))
             expected = args.switches * args.throws
             _follow(inbox, outcome, console, simulator, expected, stop)
-        except RuntimeError as error:
+            if simulator.returncode:
+                raise RuntimeError(f"simulator failed:\n{processes.log(simulator, 8)}")
+        except (RuntimeError, TimeoutError) as error:
             print(f"railswitch demo: {error}", file=sys.stderr)
             return 1
         finally:
@@ -220,7 +176,7 @@ def _follow(inbox: Inbox, outcome: Outcome, console: Console, simulator: subproc
         while not stop.is_set() and len(outcome.diagnoses) < expected:
             if simulator.poll() is not None:
                 if simulator.returncode != 0:
-                    raise RuntimeError(f"simulator failed with exit code {simulator.returncode}")
+                    return
                 drain_deadline = drain_deadline or time.monotonic() + DRAIN_TIMEOUT_S
                 if time.monotonic() > drain_deadline:
                     break

@@ -15,7 +15,7 @@ from schemas import FaultCommand, encode, key_expr
 from tests.live import (
     ROOT,
     DiagnosisCollector,
-    Services,
+    ServiceProcesses,
     client,
     jsonl_decisions,
     start_router,
@@ -52,14 +52,14 @@ def live_run(tmp_path_factory) -> LiveRun:
     scenario = work / "scenario.toml"
     scenario.write_text(SCENARIO)
     recording = work / "live.mcap"
-    with Services(work) as services:
+    with ServiceProcesses(work) as services:
         endpoint = start_router(services)
         session = client(endpoint)
         try:
             collector = DiagnosisCollector(session)
             services.start("diagnoser", "--connect", endpoint)
             recorder = services.start("recorder", "--connect", endpoint, "--out", str(recording))
-            wait_ready(session, "diagnoser", "recorder")
+            wait_ready(session, services, diagnoser=1, recorder=1)
             simulator = services.start("simulator", "--connect", endpoint, "--scenario", str(scenario),
                                        "--speed", SPEED)
             assert simulator.wait(120) == 0, services.log(simulator)
@@ -104,13 +104,13 @@ def test_recording_has_no_missing_samples(live_run):
 
 
 def test_replay_into_a_fresh_diagnoser_and_offline_diagnosis_agree_with_live(live_run, tmp_path):
-    with Services(tmp_path) as services:
+    with ServiceProcesses(tmp_path) as services:
         endpoint = start_router(services)
         session = client(endpoint)
         try:
             collector = DiagnosisCollector(session)
             services.start("diagnoser", "--connect", endpoint)
-            wait_ready(session, "diagnoser")
+            wait_ready(session, services, diagnoser=1)
             replay = services.start("replay", str(live_run.recording), "--connect", endpoint, "--fast")
             assert replay.wait(120) == 0, services.log(replay)
             wait_for(lambda: len(collector.received) >= 6, 60, "six diagnoses of the replay")
@@ -124,13 +124,13 @@ def test_replay_into_a_fresh_diagnoser_and_offline_diagnosis_agree_with_live(liv
 
 
 def test_fault_command_changes_the_next_throws_diagnosis(tmp_path):
-    with Services(tmp_path) as services:
+    with ServiceProcesses(tmp_path) as services:
         endpoint = start_router(services)
         session = client(endpoint)
         try:
             collector = DiagnosisCollector(session)
             services.start("diagnoser", "--connect", endpoint)
-            wait_ready(session, "diagnoser")
+            wait_ready(session, services, diagnoser=1)
             simulator = services.start("simulator", "--connect", endpoint, "--switch-id", "sw7", "--throws", "5",
                                        "--speed", "5")
             wait_for(lambda: len(collector.received) >= 1, 120, "the first diagnosis")
@@ -153,7 +153,7 @@ def test_demo_with_small_settings_exits_0_and_writes_its_recording(tmp_path):
                              "--speed", "20", "--out", str(out)], cwd=ROOT, capture_output=True, text=True,
                             timeout=600)
     assert result.returncode == 0, result.stdout + result.stderr
-    assert "4 of 4 throws decided as expected" in result.stdout
+    assert "4 of 4 throws decided as expected" in result.stdout, result.stdout + result.stderr
     with open(out, "rb") as f:
         topics = {channel.topic for _, channel, _ in make_reader(f).iter_messages()}
     assert {key_expr(s, "diagnosis") for s in ("sw1", "sw2")} <= topics
