@@ -116,3 +116,69 @@ class SwitchSimulation:
     def time_ns(self, sample_index: int) -> int:
         """Integer nanoseconds of a sample index: start_ns plus its time from the simulation's start."""
         return self.start_ns + round(sample_index * 1_000_000_000 / self.rate_hz)
+
+
+@dataclass(frozen=True)
+class RecordedThrow:
+    """The measured samples of one recorded throw, after its start sample, and its reference."""
+
+    direction: str
+    reference: Reference
+    current_a: np.ndarray
+    angle_rad: np.ndarray
+    velocity_rad_s: np.ndarray
+
+
+class ReplayedSwitch:
+    """Stands in for SwitchSimulation with recorded throws instead of the plant, so a fleet of
+    hundreds of switches costs only its messages; idle periods hold the last sample."""
+
+    def __init__(self, throws: list[RecordedThrow], *, rate_hz: float = 50.0, start_ns: int = 0, first: int = 0):
+        by_direction = {d: [t for t in throws if t.direction == d] for d in DIRECTIONS}
+        missing = [d for d, recorded in by_direction.items() if not recorded]
+        if missing:
+            raise ValueError(f"no recorded throw {' or '.join(missing)}")
+        self._throws = by_direction
+        self.rate_hz = float(rate_hz)
+        self.start_ns = int(start_ns)
+        self.faults: dict[str, float] = {}
+        self.sample_index = 0
+        self.throw_count = 0
+        self._first = first
+        self._last = by_direction[DIRECTIONS[1]][0]  # the switch rests where a right-to-left throw ends
+
+    def set_faults(self, faults: dict[str, float]) -> None:
+        """Recorded throws cannot change; the faults are only reported."""
+        self.faults = dict(faults)
+
+    def _hold(self, first_index: int, count: int) -> Samples:
+        last = self._last
+        values = {name: np.full(count, getattr(last, name)[-1]) for name in MEASURED}
+        return Samples(first_index, rail_position_m=np.full(count, np.nan), **values)
+
+    def initial_sample(self) -> Samples:
+        return self._hold(0, 1)
+
+    def next_direction(self) -> str:
+        return DIRECTIONS[self.throw_count % 2]
+
+    def throw(self) -> Throw:
+        direction = self.next_direction()
+        recorded = self._throws[direction]
+        chosen = recorded[(self._first + self.throw_count // 2) % len(recorded)]
+        start = self.sample_index
+        samples = Samples(start + 1, chosen.current_a, chosen.angle_rad, chosen.velocity_rad_s,
+                          np.full(len(chosen.current_a), np.nan))
+        throw = Throw(self.throw_count, direction, chosen.reference, start, samples)
+        self._last = chosen
+        self.sample_index = throw.end_index
+        self.throw_count += 1
+        return throw
+
+    def idle(self, duration_s: float) -> Samples:
+        samples = self._hold(self.sample_index + 1, max(1, round(duration_s * self.rate_hz)))
+        self.sample_index += len(samples)
+        return samples
+
+    def time_ns(self, sample_index: int) -> int:
+        return self.start_ns + round(sample_index * 1_000_000_000 / self.rate_hz)

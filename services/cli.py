@@ -175,10 +175,20 @@ def _scenario_from_args(args):
 
 
 def cmd_simulator(args) -> int:
-    from services.simulator import run_simulator
+    from services.mcap_io import load_recording
+    from services.simulator import recorded_throws, run_simulator
 
+    library = None
+    if args.throws_from:
+        try:
+            library = recorded_throws(load_recording(args.throws_from).messages)
+        except OSError as error:
+            return _fail(f"cannot read {args.throws_from}: {error.strerror}")
+        directions = {throw.direction for throw in library}
+        if len(directions) < 2:
+            return _fail(f"{args.throws_from} needs a complete throw in each direction, found {len(library)} throws")
     return _live(lambda options, stop: run_simulator(options, _scenario_from_args(args), speed=args.speed,
-                                                     stop=stop), args)
+                                                     stop=stop, library=library), args)
 
 
 def cmd_diagnoser(args) -> int:
@@ -305,6 +315,9 @@ def build_parser() -> argparse.ArgumentParser:
     simulator.add_argument("--rate", type=bounded(float, 1.0, 1000.0, "samples/s"), default=None,
                            help="samples per second (default 50)")
     simulator.add_argument("--speed", type=bounded(float, 0.01, 10_000.0, "x real time"), default=1.0)
+    simulator.add_argument("--throws-from", metavar="F.mcap", default=None,
+                           help="stream the recorded throws of F (both directions) instead of running the plant: "
+                                "hundreds of switches on one core")
 
     diagnoser = _service(commands, "diagnoser", "diagnose every finished throw on the bus", cmd_diagnoser)
     diagnoser.add_argument("--model", choices=["poly", "nn", "causal"], default="poly", help="reduced rail model")

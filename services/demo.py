@@ -110,7 +110,7 @@ def _ready(router) -> bool:
 
 def _exited(processes: ServiceProcesses) -> str | None:
     for name, _, process in processes.started:
-        if process.poll() is not None:
+        if process.pid not in processes.stopped and process.poll() is not None:
             return f"{name} exited early with code {process.returncode}:\n{processes.log(process, 8)}"
     return None
 

@@ -24,6 +24,7 @@ class ServiceProcesses:
         self.own_session = own_session  # True: a terminal's Ctrl-C reaches only the parent, which stops them
         self.grace_s = grace_s
         self.started: list[tuple[str, Path, subprocess.Popen]] = []
+        self.stopped: set[int] = set()  # pids we stopped on purpose
 
     def start(self, name: str, *args: str) -> subprocess.Popen:
         path = self.log_dir / f"{name}-{len(self.started)}.log"
@@ -41,6 +42,7 @@ class ServiceProcesses:
 
     def stop(self, process: subprocess.Popen, sig: int = signal.SIGINT) -> int:
         """Signal one process and wait for it (killing it after the grace period); its exit code."""
+        self.stopped.add(process.pid)
         if process.poll() is None:
             process.send_signal(sig)
             try:
@@ -98,7 +100,7 @@ def wait_ready(session: zenoh.Session, processes: ServiceProcesses, timeout_s: f
     """Until `counts` instances of each named service are up (diagnosers: subscribed and warmed up)."""
     def exited() -> str | None:
         for name, _, process in processes.started:
-            if name in counts and process.poll() is not None:
+            if name in counts and process.pid not in processes.stopped and process.poll() is not None:
                 return f"{name} exited with code {process.returncode}:\n{processes.log(process, 8)}"
         return None
 

@@ -14,13 +14,17 @@ from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from models.plant import Plant
 from models.reference import THROW_DURATION_S
-from models.switch import SwitchSimulation
+from models.reference import Reference
+from models.switch import RecordedThrow, ReplayedSwitch, SwitchSimulation
 from schemas import FaultCommand, Message, MessageError, decode, parse_key_expr
 from schemas.scenario import Scenario, SwitchPlan
 from services.bus import BusOptions, Inbox, Publishers, declare_service, open_session
 from services.switch_messages import motor_messages, throw_messages, truth_message
+from services.throw_cutter import cut_throws
 
 log = logging.getLogger("railswitch.simulator")
 
@@ -32,7 +36,7 @@ class SwitchStream:
     """One simulated switch: its plant simulation, fault schedule and the messages computed ahead."""
 
     plan: SwitchPlan
-    sim: SwitchSimulation
+    sim: SwitchSimulation | ReplayedSwitch
     idle_s: float
     faults: dict[str, float]
     pending: deque[tuple[int, str, Message]] = field(default_factory=deque)
@@ -41,7 +45,7 @@ class SwitchStream:
     finished: bool = False
 
     @classmethod
-    def start(cls, plan: SwitchPlan, sim: SwitchSimulation, *, interval_s: float, offset_s: float) -> SwitchStream:
+    def start(cls, plan: SwitchPlan, sim: SwitchSimulation | ReplayedSwitch, *, interval_s: float, offset_s: float) -> SwitchStream:
         stream = cls(plan, sim, interval_s - THROW_DURATION_S, dict(plan.faults))
         stream._push([truth_message(plan.id, sim, sim.time_ns(0))])
         stream._push(motor_messages(plan.id, sim, sim.initial_sample()))
@@ -93,20 +97,40 @@ class SwitchStream:
         log.info("%s: faults set to %s from throw %d on", self.plan.id, faults or "none", self.throws_done)
 
 
-def run_simulator(options: BusOptions, scenario: Scenario, *, speed: float, stop: threading.Event) -> int:
-    """Stream the scenario's switches until every plan is done or stop is set; returns messages published."""
+def recorded_throws(messages: Iterable[Message]) -> list[RecordedThrow]:
+    """The complete throws of a recording, as material for ReplayedSwitch."""
+    out = []
+    for throw in cut_throws(messages):
+        if throw.end is None or throw.missing_samples:
+            continue
+        after = throw.t_s > 0  # the sample at the start event belongs to the rest before the throw
+        reference = Reference(np.asarray(throw.start.reference_t_s), np.asarray(throw.start.reference_velocity_rad_s))
+        out.append(RecordedThrow(throw.start.direction, reference, throw.current_a[after], throw.angle_rad[after],
+                                 throw.velocity_rad_s[after]))
+    return out
+
+
+def run_simulator(options: BusOptions, scenario: Scenario, *, speed: float, stop: threading.Event,
+                  library: list[RecordedThrow] | None = None) -> int:
+    """Stream the scenario's switches until every plan is done or stop is set; returns messages published.
+
+    With a library of recorded throws the switches replay those instead of running the plant.
+    """
     session = open_session(options, stop=stop)
     try:
         publishers = Publishers(session)
         inbox = Inbox(session, ["railswitch/*/inject"])
         token = declare_service(session, "simulator")
-        plant = Plant()
+        plant = Plant() if library is None else None
         start_ns = time.time_ns()
         count = len(scenario.switches)
         streams = {}
         for k, plan in enumerate(scenario.switches):
-            sim = SwitchSimulation(plant, rate_hz=scenario.rate_hz, faults=plan.faults, noise_rel=scenario.noise,
-                                   seed=scenario.seed + k, start_ns=start_ns)
+            if plant is None:
+                sim = ReplayedSwitch(library, rate_hz=scenario.rate_hz, start_ns=start_ns, first=k)
+            else:
+                sim = SwitchSimulation(plant, rate_hz=scenario.rate_hz, faults=plan.faults, noise_rel=scenario.noise,
+                                       seed=scenario.seed + k, start_ns=start_ns)
             streams[plan.id] = SwitchStream.start(plan, sim, interval_s=scenario.interval_s,
                                                   offset_s=LEAD_S + k * scenario.interval_s / count)
         log.info("simulating %d switch(es) at %g samples/s, %gx real time", count, scenario.rate_hz, speed)

@@ -12,6 +12,7 @@ import pytest
 from mcap.reader import make_reader
 
 from schemas import FaultCommand, encode, key_expr
+from services.processes import free_loopback_endpoint
 from tests.live import (
     ROOT,
     DiagnosisCollector,
@@ -43,6 +44,7 @@ class LiveRun:
     recording: Path
     decisions: dict[tuple[str, int], str]
     recorder_exit: int
+    watched: str
 
 
 @pytest.fixture(scope="module")
@@ -59,6 +61,7 @@ def live_run(tmp_path_factory) -> LiveRun:
             collector = DiagnosisCollector(session)
             services.start("diagnoser", "--connect", endpoint)
             recorder = services.start("recorder", "--connect", endpoint, "--out", str(recording))
+            watch = services.start("watch", "--connect", endpoint, "--jsonl", "--count", "6")
             wait_ready(session, services, diagnoser=1, recorder=1)
             simulator = services.start("simulator", "--connect", endpoint, "--scenario", str(scenario),
                                        "--speed", SPEED)
@@ -67,14 +70,21 @@ def live_run(tmp_path_factory) -> LiveRun:
             time.sleep(0.5)  # the recorder takes the last diagnoses off the bus too
             recorder.send_signal(signal.SIGTERM)
             recorder_exit = recorder.wait(30)
+            watch.wait(30)
+            watched = services.log(watch)
         finally:
             session.close()
-    return LiveRun(recording, collector.decisions(), recorder_exit)
+    return LiveRun(recording, collector.decisions(), recorder_exit, watched)
 
 
 def test_live_diagnoses_match_the_injected_faults(live_run):
     assert live_run.decisions == {**{("healthy", k): "nominal" for k in range(3)},
                                   **{("faulty", k): "left_bolt" for k in range(3)}}
+
+
+def test_watch_prints_each_diagnosis_as_a_json_line(live_run):
+    lines = [line for line in live_run.watched.splitlines() if line.startswith("{")]
+    assert jsonl_decisions("\n".join(lines)) == live_run.decisions
 
 
 def test_sigterm_leaves_a_complete_recording_with_every_channel(live_run):
@@ -124,12 +134,15 @@ def test_replay_into_a_fresh_diagnoser_and_offline_diagnosis_agree_with_live(liv
 
 
 def test_fault_command_changes_the_next_throws_diagnosis(tmp_path):
+    """Also: services started before their router wait for it."""
     with ServiceProcesses(tmp_path) as services:
-        endpoint = start_router(services)
+        endpoint = free_loopback_endpoint()
+        services.start("diagnoser", "--connect", endpoint)
+        time.sleep(3.0)  # the diagnoser is retrying by now
+        services.start("router", "--listen", endpoint)
         session = client(endpoint)
         try:
             collector = DiagnosisCollector(session)
-            services.start("diagnoser", "--connect", endpoint)
             wait_ready(session, services, diagnoser=1)
             simulator = services.start("simulator", "--connect", endpoint, "--switch-id", "sw7", "--throws", "5",
                                        "--speed", "5")
