@@ -120,6 +120,27 @@ def cmd_report(args) -> int:
     return 0
 
 
+def cmd_recover(args) -> int:
+    from pathlib import Path
+
+    from services.mcap_io import recover_recording
+
+    if Path(args.output).resolve() == Path(args.recording).resolve():
+        return _fail("the recovered file must not replace the damaged one")
+    try:
+        recording = recover_recording(args.recording, args.output)
+    except OSError as error:
+        return _fail(str(error) if error.strerror is None else f"cannot recover {args.recording}: {error.strerror}")
+    note = recording.note() or "the file was intact"
+    if not recording.records:
+        print(f"railswitch recover: {args.recording}: {note}; nothing to recover", file=sys.stderr)
+        return 1
+    times = [record.log_time_ns for record in recording.records]
+    print(f"recovered {len(recording.records)} messages spanning {(max(times) - min(times)) * 1e-9:.1f} s "
+          f"into {args.output}: {note}")
+    return 0
+
+
 def cmd_diagnose(args) -> int:
     from services.diagnose import diagnose_file
 
@@ -211,14 +232,14 @@ def cmd_replay(args) -> int:
         recording = load_recording(args.recording)
     except OSError as error:
         return _fail(f"cannot read {args.recording}: {error.strerror}")
-    note = recording.note()
-    if note:
-        print(f"railswitch replay: {args.recording}: {note}", file=sys.stderr)
     kinds = PLANT_KINDS + (("diagnosis",) if args.with_diagnosis else ())
     plan = ReplayPlan.of(recording.records, kinds)
+    note = recording.note()
     if not plan.records:
-        print(f"railswitch replay: {args.recording}: nothing to replay", file=sys.stderr)
+        print(f"railswitch replay: {args.recording}: {note + '; ' if note else ''}nothing to replay", file=sys.stderr)
         return 1
+    if note:
+        print(f"railswitch replay: {args.recording}: {note}", file=sys.stderr)
     speed = None if args.fast else args.speed
     return _live(lambda options, stop: run_replay(options, plan, speed=speed, loops=args.loop, stop=stop), args)
 
@@ -295,6 +316,11 @@ def build_parser() -> argparse.ArgumentParser:
     diagnose.add_argument("--model", choices=["poly", "nn", "causal"], default="poly", help="reduced rail model")
     diagnose.add_argument("--jsonl", action="store_true", help="one Diagnosis JSON object per throw on stdout")
     diagnose.set_defaults(handler=cmd_diagnose)
+
+    recover = commands.add_parser("recover", help="copy what can be read from a damaged recording into a complete one")
+    recover.add_argument("recording", metavar="F.mcap")
+    recover.add_argument("-o", "--output", required=True, metavar="G.mcap")
+    recover.set_defaults(handler=cmd_recover)
 
     _service(commands, "router", "a Zenoh router (eclipse-zenoh in router mode) listening on --listen "
              "(default tcp/127.0.0.1:7447)", cmd_router)

@@ -10,11 +10,11 @@ import logging
 import threading
 import time
 import zlib
-from collections import Counter
 
-from schemas import CHANNEL_MODELS, MessageError, decode, key_expr, parse_key_expr
+from schemas import key_expr
 from services.bus import BusOptions, Inbox, Publishers, Received, declare_service, open_session
 from services.diagnosis import Diagnoser
+from services.intake import Intake
 from services.throw_cutter import ThrowCutter
 
 log = logging.getLogger("railswitch.diagnoser")
@@ -48,25 +48,13 @@ class LiveDiagnoser:
         self.publishers = publishers
         self.shard = shard
         self.cutter = ThrowCutter()
-        self.rejected: Counter[str] = Counter()
+        self.intake = Intake(log, INPUT_KINDS, self._is_mine)
         self.diagnosed = 0
         self._mine: dict[str, bool] = {}
 
     def handle(self, item: Received) -> None:
-        try:
-            switch_id, kind = parse_key_expr(item.key)
-        except ValueError:
-            self._reject("key is not railswitch/<switch_id>/<kind>", item.key)
-            return
-        if kind not in INPUT_KINDS or not self._is_mine(switch_id):
-            return
-        try:
-            message = decode(CHANNEL_MODELS[kind], item.payload)
-        except MessageError as error:
-            self._reject(f"{kind}: {error}", item.key)
-            return
-        if message.switch_id != switch_id:
-            self._reject(f"{kind}: switch_id differs from the key", item.key)
+        message = self.intake.message(item)
+        if message is None:
             return
         throw = self.cutter.feed(message)
         if throw is None:
@@ -74,9 +62,9 @@ class LiveDiagnoser:
         diagnosis = self.diagnoser.diagnose(throw).diagnosis
         latency_ms = (time.monotonic() - item.arrived_s) * 1e3  # from the end event's arrival to publication
         diagnosis = diagnosis.model_copy(update={"latency_ms": latency_ms})
-        self.publishers.put(key_expr(switch_id, "diagnosis"), diagnosis)
+        self.publishers.put(key_expr(message.switch_id, "diagnosis"), diagnosis)
         self.diagnosed += 1
-        log.info("%s throw %d %s: %s (%.0f ms)%s", switch_id, diagnosis.throw_index, diagnosis.direction,
+        log.info("%s throw %d %s: %s (%.0f ms)%s", message.switch_id, diagnosis.throw_index, diagnosis.direction,
                  diagnosis.decision, latency_ms, f" - {diagnosis.reason}" if diagnosis.reason else "")
 
     def _is_mine(self, switch_id: str) -> bool:
@@ -84,11 +72,6 @@ class LiveDiagnoser:
         if mine is None:
             mine = self._mine[switch_id] = in_shard(switch_id, self.shard)
         return mine
-
-    def _reject(self, reason: str, key: str) -> None:
-        self.rejected[reason] += 1
-        if self.rejected[reason] == 1:  # one line per kind of junk, not one per message
-            log.warning("rejected a message on %s: %s (further ones are counted)", key, reason)
 
 
 def run_diagnoser(options: BusOptions, *, model: str, shard: tuple[int, int], stop: threading.Event) -> int:
@@ -107,7 +90,7 @@ def run_diagnoser(options: BusOptions, *, model: str, shard: tuple[int, int], st
             if item is not None:
                 live.handle(item)
         token.undeclare()
-        log.info("published %d diagnoses; rejected %s", live.diagnosed, dict(live.rejected) or "nothing")
+        log.info("published %d diagnoses; rejected %s", live.diagnosed, dict(live.intake.rejected) or "nothing")
         return live.diagnosed
     finally:
         session.close()

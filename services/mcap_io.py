@@ -99,8 +99,14 @@ class RecordingWriter:
             self._stream.close()  # flush now: a full disk must not be renamed into place
             if self._atomic and exc_type is None:
                 os.replace(self._file, self.path)
+        except OSError as error:
+            if exc_type is None:  # else the error already on its way says more
+                raise RecordingPathError(f"cannot finish recording {self.path}: {error.strerror}") from None
         finally:
-            self._stream.close()
+            try:
+                self._stream.close()
+            except OSError:
+                pass  # the data that could not be flushed is lost either way; the error is reported above
             if self._atomic:
                 self._file.unlink(missing_ok=True)
 
@@ -247,6 +253,16 @@ def load_recording(path: str | os.PathLike[str]) -> Recording:
     reader = RecordingReader(path)
     records = list(reader)
     return Recording(records, reader.damage, reader.skipped)
+
+
+def recover_recording(source: str | os.PathLike[str], target: str | os.PathLike[str]) -> Recording:
+    """Copy every message that can be read from a damaged recording into a complete new one."""
+    recording = load_recording(source)
+    if recording.records:
+        with RecordingWriter(target) as writer:
+            for record in recording.records:
+                writer.write(record.key, record.message, record.log_time_ns)
+    return recording
 
 
 def read_recording(path: str | os.PathLike[str]) -> Iterator[RecordedMessage]:

@@ -2,24 +2,28 @@
 
 Channels, schemas and log times are those of `railswitch simulate` (DESIGN.md section 5),
 plus the diagnosis and inject channels. The file is finished on SIGINT and SIGTERM; chunks
-of 32 KiB are pushed to the operating system at least every second, so a killed recorder
-loses only the chunk it was filling (a few seconds of one switch, less for a fleet).
+of 16 KiB are pushed to the operating system at least every second, so a killed recorder
+loses only the chunk it was filling (about 2 s of one switch, less for a fleet), and
+`railswitch recover` turns what it left into a complete file.
 """
 from __future__ import annotations
 
 import logging
+import shutil
 import threading
 import time
-from collections import Counter
 from pathlib import Path
 
-from schemas import CHANNEL_MODELS, Diagnosis, MessageError, decode, parse_key_expr
-from services.bus import SERVICE_PREFIX, BusOptions, Inbox, Received, declare_service, open_session
-from services.mcap_io import RecordingWriter
+from schemas import Diagnosis
+from services.bus import BusOptions, Inbox, Received, declare_service, open_session
+from services.intake import Intake
+from services.mcap_io import RecordingPathError, RecordingWriter
 
 log = logging.getLogger("railswitch.recorder")
 
 FLUSH_S = 1.0
+CHUNK_BYTES = 16_384  # about 2 s of one switch at 50 Hz: what a killed recorder can lose
+MIN_FREE_BYTES = 64 * 2**20
 
 
 class Recorder:
@@ -27,26 +31,13 @@ class Recorder:
 
     def __init__(self, writer: RecordingWriter):
         self.writer = writer
-        self.rejected: Counter[str] = Counter()
+        self.intake = Intake(log)
         self._last_t_ns: dict[str, int] = {}
 
     def handle(self, item: Received) -> None:
-        if item.key.startswith(SERVICE_PREFIX + "/"):
-            return  # service status and liveliness are not switch data
-        try:
-            switch_id, kind = parse_key_expr(item.key)
-        except ValueError:
-            self._reject("key is not railswitch/<switch_id>/<kind>", item.key)
-            return
-        try:
-            message = decode(CHANNEL_MODELS[kind], item.payload)
-        except MessageError as error:
-            self._reject(f"{kind}: {error}", item.key)
-            return
-        if message.switch_id != switch_id:
-            self._reject(f"{kind}: switch_id differs from the key", item.key)
-            return
-        self.writer.write(item.key, message, self._log_time(switch_id, message))
+        message = self.intake.message(item)
+        if message is not None:
+            self.writer.write(item.key, message, self._log_time(message.switch_id, message))
 
     def _log_time(self, switch_id: str, message) -> int:
         """The message's own time; a diagnosis its throw's end; a command the switch's latest time."""
@@ -58,20 +49,32 @@ class Recorder:
         self._last_t_ns[switch_id] = max(t_ns, self._last_t_ns.get(switch_id, 0))
         return t_ns
 
-    def _reject(self, reason: str, key: str) -> None:
-        self.rejected[reason] += 1
-        if self.rejected[reason] == 1:
-            log.warning("rejected a message on %s: %s (further ones are counted)", key, reason)
-
 
 def output_path(pattern: str) -> Path:
     """--out with `{time}` replaced by the UTC start time, so a restarted recorder never overwrites."""
     return Path(pattern.replace("{time}", time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())))
 
 
+def check_space(path: Path, needed: int = MIN_FREE_BYTES) -> None:
+    """A recorder must not find out after an hour that its disk is full."""
+    free = shutil.disk_usage(path.parent).free
+    if free < needed:
+        raise RecordingPathError(f"cannot record to {path}: only {free / 2**20:.0f} MiB free on its disk "
+                                 f"(at least {needed / 2**20:.0f} MiB needed)")
+
+
 def run_recorder(options: BusOptions, out: str, *, stop: threading.Event) -> int:
-    """Record until stop is set; the file is finished in every case. Returns the messages written."""
-    with RecordingWriter(output_path(out), atomic=False) as writer:  # fails here, before connecting, if out is unwritable
+    """Record until stop is set; the file is finished in every case. Returns the messages written.
+
+    An unwritable path or a full disk fails here, before connecting.
+    """
+    path = output_path(out)
+    with RecordingWriter(path, atomic=False, chunk_size=CHUNK_BYTES) as writer:
+        check_space(writer.path)
+        try:
+            writer.flush()  # the header reaches the disk now: a full device fails at start
+        except OSError as error:
+            raise RecordingPathError(f"cannot write recording {path}: {error.strerror}") from None
         session = open_session(options, stop=stop)
         try:
             inbox = Inbox(session, ["railswitch/**"])
@@ -89,5 +92,5 @@ def run_recorder(options: BusOptions, out: str, *, stop: threading.Event) -> int
         finally:
             session.close()
         log.info("wrote %d messages to %s; rejected %s", writer.message_count, writer.path,
-                 dict(recorder.rejected) or "nothing")
+                 dict(recorder.intake.rejected) or "nothing")
         return writer.message_count

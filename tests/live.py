@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import zenoh
@@ -11,8 +13,8 @@ from services.bus import BusOptions, open_session
 from services.processes import ServiceProcesses, free_loopback_endpoint, wait_for, wait_ready
 
 ROOT = Path(__file__).resolve().parents[1]
-__all__ = ["ROOT", "DiagnosisCollector", "ServiceProcesses", "client", "jsonl_decisions", "start_router", "wait_for",
-           "wait_ready"]
+__all__ = ["ROOT", "DiagnosisCollector", "ServiceProcesses", "client", "jsonl_decisions", "live_bus", "start_router",
+           "wait_for", "wait_ready"]
 
 
 def start_router(services: ServiceProcesses) -> str:
@@ -44,3 +46,15 @@ class DiagnosisCollector:
 def jsonl_decisions(text: str) -> dict[tuple[str, int], str]:
     rows = [json.loads(line) for line in text.splitlines() if line.strip()]
     return {(r["switch_id"], r["throw_index"]): r["decision"] for r in rows}
+
+
+@contextmanager
+def live_bus(log_dir: Path) -> Iterator[tuple[ServiceProcesses, str, zenoh.Session, DiagnosisCollector]]:
+    """A router process, the test's own session and a diagnosis collector; everything stops on exit."""
+    with ServiceProcesses(log_dir) as services:
+        endpoint = start_router(services)
+        session = client(endpoint)
+        try:
+            yield services, endpoint, session, DiagnosisCollector(session)
+        finally:
+            session.close()

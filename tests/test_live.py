@@ -19,7 +19,7 @@ from tests.live import (
     ServiceProcesses,
     client,
     jsonl_decisions,
-    start_router,
+    live_bus,
     wait_for,
     wait_ready,
 )
@@ -54,26 +54,19 @@ def live_run(tmp_path_factory) -> LiveRun:
     scenario = work / "scenario.toml"
     scenario.write_text(SCENARIO)
     recording = work / "live.mcap"
-    with ServiceProcesses(work) as services:
-        endpoint = start_router(services)
-        session = client(endpoint)
-        try:
-            collector = DiagnosisCollector(session)
-            services.start("diagnoser", "--connect", endpoint)
-            recorder = services.start("recorder", "--connect", endpoint, "--out", str(recording))
-            watch = services.start("watch", "--connect", endpoint, "--jsonl", "--count", "6")
-            wait_ready(session, services, diagnoser=1, recorder=1)
-            simulator = services.start("simulator", "--connect", endpoint, "--scenario", str(scenario),
-                                       "--speed", SPEED)
-            assert simulator.wait(120) == 0, services.log(simulator)
-            wait_for(lambda: len(collector.received) >= 6, 60, "six diagnoses")
-            time.sleep(0.5)  # the recorder takes the last diagnoses off the bus too
-            recorder.send_signal(signal.SIGTERM)
-            recorder_exit = recorder.wait(30)
-            watch.wait(30)
-            watched = services.log(watch)
-        finally:
-            session.close()
+    with live_bus(work) as (services, endpoint, session, collector):
+        services.start("diagnoser", "--connect", endpoint)
+        recorder = services.start("recorder", "--connect", endpoint, "--out", str(recording))
+        watch = services.start("watch", "--connect", endpoint, "--jsonl", "--count", "6")
+        wait_ready(session, services, diagnoser=1, recorder=1)
+        simulator = services.start("simulator", "--connect", endpoint, "--scenario", str(scenario), "--speed", SPEED)
+        assert simulator.wait(120) == 0, services.log(simulator)
+        wait_for(lambda: len(collector.received) >= 6, 60, "six diagnoses")
+        time.sleep(0.5)  # the recorder takes the last diagnoses off the bus too
+        recorder.send_signal(signal.SIGTERM)
+        recorder_exit = recorder.wait(30)
+        watch.wait(30)
+        watched = services.log(watch)
     return LiveRun(recording, collector.decisions(), recorder_exit, watched)
 
 
@@ -114,18 +107,12 @@ def test_recording_has_no_missing_samples(live_run):
 
 
 def test_replay_into_a_fresh_diagnoser_and_offline_diagnosis_agree_with_live(live_run, tmp_path):
-    with ServiceProcesses(tmp_path) as services:
-        endpoint = start_router(services)
-        session = client(endpoint)
-        try:
-            collector = DiagnosisCollector(session)
-            services.start("diagnoser", "--connect", endpoint)
-            wait_ready(session, services, diagnoser=1)
-            replay = services.start("replay", str(live_run.recording), "--connect", endpoint, "--fast")
-            assert replay.wait(120) == 0, services.log(replay)
-            wait_for(lambda: len(collector.received) >= 6, 60, "six diagnoses of the replay")
-        finally:
-            session.close()
+    with live_bus(tmp_path) as (services, endpoint, session, collector):
+        services.start("diagnoser", "--connect", endpoint)
+        wait_ready(session, services, diagnoser=1)
+        replay = services.start("replay", str(live_run.recording), "--connect", endpoint, "--fast")
+        assert replay.wait(120) == 0, services.log(replay)
+        wait_for(lambda: len(collector.received) >= 6, 60, "six diagnoses of the replay")
     offline = subprocess.run([sys.executable, "-m", "services.cli", "diagnose", str(live_run.recording), "--jsonl"],
                              cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert offline.returncode == 0, offline.stderr
