@@ -173,7 +173,7 @@ def sample_rate_hz(t_s: np.ndarray) -> float:
 def problem(throw: ThrowInput) -> str | None:
     """Why a throw cannot be diagnosed, or None when it can."""
     if throw.duration_s is None:
-        return "throw has no end event (the stream stopped during the throw)"
+        return "throw has no end event (the stream stopped, or the next throw started, before it ended)"
     if len(throw.t_s) < 3:
         return f"throw has {len(throw.t_s)} samples"
     if throw.missing_samples:

@@ -75,9 +75,10 @@ class MotorSample(Message):
     switch_id: SwitchId
     seq: Index
     t_ns: TimeNs
-    current_a: float
-    angle_rad: float
-    velocity_rad_s: float
+    # Bounds far beyond any point machine (amperes, radians, rad/s): what lies outside is junk.
+    current_a: Annotated[float, Field(ge=-1e4, le=1e4)]
+    angle_rad: Annotated[float, Field(ge=-1e6, le=1e6)]
+    velocity_rad_s: Annotated[float, Field(ge=-1e5, le=1e5)]
 
 
 class ThrowEvent(Message):
@@ -185,6 +186,18 @@ class Diagnosis(Message):
         if self.decision == "unknown" and not (self.reason and self.reason.strip()):
             raise ValueError("decision 'unknown' needs a non-empty reason")
         return self
+
+
+class ServiceStatus(Message):
+    """What a live service reports every few seconds on railswitch/service/<service>/<instance>/status."""
+
+    service: Annotated[str, Field(pattern=r"^[a-z]{1,32}$")]
+    instance: SwitchId
+    t_ns: TimeNs
+    uptime_s: NonNegative
+    received: Index  # payloads taken off the bus
+    rejected: dict[str, Index] = {}  # per reason
+    counters: dict[str, Index] = {}  # the service's own, e.g. diagnosed, written
 
 
 CHANNEL_MODELS: dict[str, type[Message]] = {

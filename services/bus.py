@@ -15,6 +15,7 @@ import signal
 import socket
 import threading
 import time
+from collections import Counter
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -22,7 +23,7 @@ from typing import NamedTuple
 
 import zenoh
 
-from schemas import Message, encode
+from schemas import Message, ServiceStatus, encode
 
 log = logging.getLogger("railswitch.bus")
 
@@ -199,6 +200,29 @@ class Inbox:
         for subscriber in self._subscribers:
             subscriber.undeclare()
         self._subscribers = []
+
+
+class StatusReporter:
+    """Publishes a ServiceStatus on railswitch/service/<name>/<instance>/status every interval_s."""
+
+    def __init__(self, publishers: Publishers, service: str, interval_s: float = 5.0):
+        self.publishers = publishers
+        self.service = service
+        self.instance = instance_name()
+        self.key = f"{SERVICE_PREFIX}/{service}/{self.instance}/status"
+        self.interval_s = interval_s
+        self._started = time.monotonic()
+        self._next = self._started
+
+    def maybe_publish(self, received: int, rejected: Counter[str], counters: dict[str, int], force: bool = False) -> None:
+        now = time.monotonic()
+        if not force and now < self._next:
+            return
+        self._next = now + self.interval_s
+        status = ServiceStatus(service=self.service, instance=self.instance, t_ns=time.time_ns(),
+                               uptime_s=now - self._started, received=received, rejected=dict(rejected),
+                               counters=counters)
+        self.publishers.put(self.key, status)
 
 
 @contextmanager

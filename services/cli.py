@@ -209,19 +209,21 @@ def cmd_simulator(args) -> int:
         if len(directions) < 2:
             return _fail(f"{args.throws_from} needs a complete throw in each direction, found {len(library)} throws")
     return _live(lambda options, stop: run_simulator(options, _scenario_from_args(args), speed=args.speed,
-                                                     stop=stop, library=library), args)
+                                                     stop=stop, library=library, status_s=args.status_interval), args)
 
 
 def cmd_diagnoser(args) -> int:
     from services.diagnoser import run_diagnoser
 
-    return _live(lambda options, stop: run_diagnoser(options, model=args.model, shard=args.shard, stop=stop), args)
+    return _live(lambda options, stop: run_diagnoser(options, model=args.model, shard=args.shard, stop=stop,
+                                                     status_s=args.status_interval), args)
 
 
 def cmd_recorder(args) -> int:
     from services.recorder import run_recorder
 
-    return _live(lambda options, stop: run_recorder(options, args.out, stop=stop), args)
+    return _live(lambda options, stop: run_recorder(options, args.out, stop=stop, status_s=args.status_interval),
+                 args)
 
 
 def cmd_replay(args) -> int:
@@ -266,12 +268,15 @@ def shard(text: str) -> tuple[int, int]:
         raise argparse.ArgumentTypeError(str(error)) from None
 
 
-def _service(commands, name: str, help_text: str, handler, *, default_mode: str | None = None):
+def _service(commands, name: str, help_text: str, handler, *, default_mode: str | None = None, status: bool = False):
     from services.bus import add_bus_arguments
 
     parser = commands.add_parser(name, help=help_text)
     add_bus_arguments(parser, default_mode=default_mode)
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    if status:
+        parser.add_argument("--status-interval", type=bounded(float, 0.1, 3600.0, "s"), default=5.0, metavar="S",
+                            help="seconds between status messages on railswitch/service/<name>/<instance>/status")
     parser.set_defaults(handler=handler)
     return parser
 
@@ -326,7 +331,7 @@ def build_parser() -> argparse.ArgumentParser:
              "(default tcp/127.0.0.1:7447)", cmd_router)
 
     simulator = _service(commands, "simulator", "simulated switches publishing motor samples, throws and truth",
-                         cmd_simulator)
+                         cmd_simulator, status=True)
     simulator.add_argument("--scenario", metavar="F.toml", help="schedule of switches, throws and fault changes")
     simulator.add_argument("--switches", type=bounded(int, 1, 10_000), default=None, help="switches sw1 … swN")
     simulator.add_argument("--switch-id", type=switch_id, action="append", default=[], help="a switch (repeatable)")
@@ -345,12 +350,12 @@ def build_parser() -> argparse.ArgumentParser:
                            help="stream the recorded throws of F (both directions) instead of running the plant: "
                                 "hundreds of switches on one core")
 
-    diagnoser = _service(commands, "diagnoser", "diagnose every finished throw on the bus", cmd_diagnoser)
+    diagnoser = _service(commands, "diagnoser", "diagnose every finished throw on the bus", cmd_diagnoser, status=True)
     diagnoser.add_argument("--model", choices=["poly", "nn", "causal"], default="poly", help="reduced rail model")
     diagnoser.add_argument("--shard", type=shard, default=(1, 1), metavar="K/N",
                            help="serve only switches in shard K of N (stable hash of the switch id)")
 
-    recorder = _service(commands, "recorder", "record railswitch/** to an MCAP file", cmd_recorder)
+    recorder = _service(commands, "recorder", "record railswitch/** to an MCAP file", cmd_recorder, status=True)
     recorder.add_argument("--out", required=True, metavar="F.mcap",
                           help="file to write; {time} in the name becomes the UTC start time")
 

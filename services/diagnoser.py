@@ -12,7 +12,7 @@ import time
 import zlib
 
 from schemas import key_expr
-from services.bus import BusOptions, Inbox, Publishers, Received, declare_service, open_session
+from services.bus import BusOptions, Inbox, Publishers, Received, StatusReporter, declare_service, open_session
 from services.diagnosis import Diagnoser
 from services.intake import Intake
 from services.throw_cutter import ThrowCutter
@@ -47,8 +47,9 @@ class LiveDiagnoser:
         self.diagnoser = diagnoser
         self.publishers = publishers
         self.shard = shard
-        self.cutter = ThrowCutter()
         self.intake = Intake(log, INPUT_KINDS, self._is_mine)
+        self.cutter = ThrowCutter(on_problem=lambda switch_id, reason: self.intake.reject(
+            reason, key_expr(switch_id, "throw")))
         self.diagnosed = 0
         self._mine: dict[str, bool] = {}
 
@@ -67,6 +68,9 @@ class LiveDiagnoser:
         log.info("%s throw %d %s: %s (%.0f ms)%s", message.switch_id, diagnosis.throw_index, diagnosis.direction,
                  diagnosis.decision, latency_ms, f" - {diagnosis.reason}" if diagnosis.reason else "")
 
+    def counters(self) -> dict[str, int]:
+        return {"diagnosed": self.diagnosed, "switches": sum(self._mine.values())}
+
     def _is_mine(self, switch_id: str) -> bool:
         mine = self._mine.get(switch_id)
         if mine is None:
@@ -74,7 +78,8 @@ class LiveDiagnoser:
         return mine
 
 
-def run_diagnoser(options: BusOptions, *, model: str, shard: tuple[int, int], stop: threading.Event) -> int:
+def run_diagnoser(options: BusOptions, *, model: str, shard: tuple[int, int], stop: threading.Event,
+                  status_s: float = 5.0) -> int:
     """Diagnose until stop is set; returns the number of diagnoses published."""
     session = open_session(options, stop=stop)
     try:
@@ -86,9 +91,12 @@ def run_diagnoser(options: BusOptions, *, model: str, shard: tuple[int, int], st
         log.info("model %s ready in %.1f s; shard %d/%d", model, time.monotonic() - started, *shard)
         live = LiveDiagnoser(diagnoser, publishers, shard)
         token = declare_service(session, "diagnoser")  # declared once ready: waiters know throws will be served
+        status = StatusReporter(publishers, "diagnoser", status_s)
         for item in inbox.drain(stop):
             if item is not None:
                 live.handle(item)
+            status.maybe_publish(live.intake.received, live.intake.rejected, live.counters())
+        status.maybe_publish(live.intake.received, live.intake.rejected, live.counters(), force=True)
         token.undeclare()
         log.info("published %d diagnoses; rejected %s", live.diagnosed, dict(live.intake.rejected) or "nothing")
         return live.diagnosed

@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 from schemas import Diagnosis
-from services.bus import BusOptions, Inbox, Received, declare_service, open_session
+from services.bus import BusOptions, Inbox, Publishers, Received, StatusReporter, declare_service, open_session
 from services.intake import Intake
 from services.mcap_io import RecordingPathError, RecordingWriter
 
@@ -63,7 +63,7 @@ def check_space(path: Path, needed: int = MIN_FREE_BYTES) -> None:
                                  f"(at least {needed / 2**20:.0f} MiB needed)")
 
 
-def run_recorder(options: BusOptions, out: str, *, stop: threading.Event) -> int:
+def run_recorder(options: BusOptions, out: str, *, stop: threading.Event, status_s: float = 5.0) -> int:
     """Record until stop is set; the file is finished in every case. Returns the messages written.
 
     An unwritable path or a full disk fails here, before connecting.
@@ -80,6 +80,7 @@ def run_recorder(options: BusOptions, out: str, *, stop: threading.Event) -> int
             inbox = Inbox(session, ["railswitch/**"])
             token = declare_service(session, "recorder")
             recorder = Recorder(writer)
+            status = StatusReporter(Publishers(session), "recorder", status_s)
             log.info("recording railswitch/** to %s", writer.path)
             flushed = time.monotonic()
             for item in inbox.drain(stop):
@@ -88,6 +89,10 @@ def run_recorder(options: BusOptions, out: str, *, stop: threading.Event) -> int
                 if time.monotonic() - flushed > FLUSH_S:
                     writer.flush()
                     flushed = time.monotonic()
+                status.maybe_publish(recorder.intake.received, recorder.intake.rejected,
+                                     {"written": writer.message_count})
+            status.maybe_publish(recorder.intake.received, recorder.intake.rejected,
+                                 {"written": writer.message_count}, force=True)
             token.undeclare()
         finally:
             session.close()

@@ -20,9 +20,10 @@ from models.plant import Plant
 from models.reference import THROW_DURATION_S
 from models.reference import Reference
 from models.switch import RecordedThrow, ReplayedSwitch, SwitchSimulation
-from schemas import FaultCommand, Message, MessageError, decode, parse_key_expr
+from schemas import FaultCommand, Message
 from schemas.scenario import Scenario, SwitchPlan
-from services.bus import BusOptions, Inbox, Publishers, declare_service, open_session
+from services.bus import BusOptions, Inbox, Publishers, StatusReporter, declare_service, open_session
+from services.intake import Intake
 from services.switch_messages import motor_messages, throw_messages, truth_message
 from services.throw_cutter import cut_throws
 
@@ -111,7 +112,7 @@ def recorded_throws(messages: Iterable[Message]) -> list[RecordedThrow]:
 
 
 def run_simulator(options: BusOptions, scenario: Scenario, *, speed: float, stop: threading.Event,
-                  library: list[RecordedThrow] | None = None) -> int:
+                  library: list[RecordedThrow] | None = None, status_s: float = 5.0) -> int:
     """Stream the scenario's switches until every plan is done or stop is set; returns messages published.
 
     With a library of recorded throws the switches replay those instead of running the plant.
@@ -120,6 +121,8 @@ def run_simulator(options: BusOptions, scenario: Scenario, *, speed: float, stop
     try:
         publishers = Publishers(session)
         inbox = Inbox(session, ["railswitch/*/inject"])
+        intake = Intake(log, kinds=("inject",))
+        status = StatusReporter(publishers, "simulator", status_s)
         token = declare_service(session, "simulator")
         plant = Plant() if library is None else None
         start_ns = time.time_ns()
@@ -141,7 +144,8 @@ def run_simulator(options: BusOptions, scenario: Scenario, *, speed: float, stop
             for stream in streams.values():
                 for key, message in stream.due(t_ns):
                     publishers.put(key, message)
-            _apply_commands(inbox, streams)
+            _apply_commands(inbox, intake, streams)
+            status.maybe_publish(intake.received, intake.rejected, {"published": publishers.published})
             tick += 1
             delay = wall0 + tick / (scenario.rate_hz * speed) - time.monotonic()
             if delay > 0:
@@ -153,15 +157,8 @@ def run_simulator(options: BusOptions, scenario: Scenario, *, speed: float, stop
         session.close()
 
 
-def _apply_commands(inbox: Inbox, streams: dict[str, SwitchStream]) -> None:
+def _apply_commands(inbox: Inbox, intake: Intake, streams: dict[str, SwitchStream]) -> None:
     while (item := inbox.get(0.0)) is not None:
-        try:
-            switch_id, _ = parse_key_expr(item.key)
-            command = decode(FaultCommand, item.payload)
-        except (ValueError, MessageError) as error:
-            log.warning("ignored a fault command on %s: %s", item.key, error)
-            continue
-        if command.switch_id != switch_id:
-            log.warning("ignored a fault command on %s for switch %s", item.key, command.switch_id)
-        elif switch_id in streams:
-            streams[switch_id].command(command)
+        command = intake.message(item)
+        if isinstance(command, FaultCommand) and command.switch_id in streams:
+            streams[command.switch_id].command(command)

@@ -1,7 +1,7 @@
 """Cut a switch's message stream into throws: samples between a start and an end event."""
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -40,21 +40,32 @@ class ThrowCutter:
 
     The sample at the start event's time belongs to the throw (it is the last
     sample before the motor is powered), as does the one at the end event's time.
+    A throw whose end never comes is emitted incomplete (and so diagnosed unknown)
+    when the next throw starts or when it has run for OPEN_LIMIT_S, so a lost end
+    event costs one throw and bounded memory. Events that make no sense in the
+    stream are passed to `on_problem(switch_id, reason)` and otherwise ignored.
     """
 
-    def __init__(self) -> None:
+    OPEN_LIMIT_S = 60.0  # several times any throw's length
+
+    def __init__(self, on_problem: Callable[[str, str], None] | None = None) -> None:
         self._open: dict[str, _OpenThrow] = {}
         self._last_sample: dict[str, MotorSample] = {}
         self._truth: dict[str, FaultTruth] = {}
+        self._on_problem = on_problem or (lambda switch_id, reason: None)
 
     def feed(self, message: Message) -> CutThrow | None:
-        """Take one message; return the throw it completes, if any."""
+        """Take one message; return the throw it completes (or abandons), if any."""
         if isinstance(message, FaultTruth):
             self._truth[message.switch_id] = message
         elif isinstance(message, MotorSample):
             self._last_sample[message.switch_id] = message
             current = self._open.get(message.switch_id)
             if current is not None and message.t_ns >= current.start.t_ns:
+                if (message.t_ns - current.start.t_ns) * 1e-9 > self.OPEN_LIMIT_S:
+                    self._on_problem(message.switch_id, f"throw: no end event within {self.OPEN_LIMIT_S:g} s")
+                    del self._open[message.switch_id]
+                    return _cut(current, None)
                 current.samples.append(message)
         elif isinstance(message, ThrowEvent):
             return self._event(message)
@@ -63,13 +74,20 @@ class ThrowCutter:
     def _event(self, event: ThrowEvent) -> CutThrow | None:
         current = self._open.get(event.switch_id)
         if event.phase == "start":
+            if current is not None and event.t_ns < current.start.t_ns:
+                self._on_problem(event.switch_id, "throw: start before the open throw's start")
+                return None
             opened = _OpenThrow(event, truth=self._truth.get(event.switch_id))
             last = self._last_sample.get(event.switch_id)
             if last is not None and last.t_ns == event.t_ns:
                 opened.samples.append(last)
             self._open[event.switch_id] = opened
+            if current is not None:
+                self._on_problem(event.switch_id, "throw: started while the previous one had no end")
+                return _cut(current, None)
             return None
-        if current is None or current.start.throw_index != event.throw_index:
+        if current is None or current.start.throw_index != event.throw_index or event.t_ns < current.start.t_ns:
+            self._on_problem(event.switch_id, "throw: end without its start")
             return None
         del self._open[event.switch_id]
         return _cut(current, event)

@@ -281,11 +281,12 @@ def test_decode_gives_short_reasons(data: bytes, reason: str) -> None:
     assert str(info.value) == reason
 
 
-finite = st.floats(allow_nan=False, allow_infinity=False)
+def bounded(limit: float) -> st.SearchStrategy[float]:
+    return st.floats(-limit, limit, allow_nan=False, allow_infinity=False)
 
 
-@given(current=finite, angle=finite, velocity=finite, t_ns=st.integers(0, 2**63 - 1))
-def test_any_finite_motor_sample_round_trips_exactly(
+@given(current=bounded(1e4), angle=bounded(1e6), velocity=bounded(1e5), t_ns=st.integers(0, 2**63 - 1))
+def test_any_plausible_motor_sample_round_trips_exactly(
     current: float, angle: float, velocity: float, t_ns: int
 ) -> None:
     msg = MotorSample(
@@ -299,6 +300,16 @@ def test_any_finite_motor_sample_round_trips_exactly(
     back = decode(MotorSample, encode(msg))
     assert back == msg
     assert math.copysign(1.0, back.current_a) == math.copysign(1.0, current)
+
+
+@given(field=st.sampled_from(["current_a", "angle_rad", "velocity_rad_s"]),
+       value=st.floats(1e6, 1e308) | st.floats(-1e308, -1e6))
+def test_absurd_motor_values_are_rejected(field: str, value: float) -> None:
+    values = {"current_a": 0.0, "angle_rad": 0.0, "velocity_rad_s": 0.0, field: value}
+    if abs(value) <= {"current_a": 1e4, "angle_rad": 1e6, "velocity_rad_s": 1e5}[field]:
+        return
+    with pytest.raises(MessageError, match=field):
+        decode(MotorSample, json.dumps({"switch_id": "sw1", "seq": 0, "t_ns": 0, **values}).encode())
 
 
 @given(data=st.one_of(st.binary(max_size=200), st.text(max_size=200).map(str.encode)))

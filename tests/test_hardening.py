@@ -1,0 +1,165 @@
+"""Junk on the bus, crashed and restarted processes, damaged files (issue 6)."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from schemas import (
+    CHANNEL_MODELS,
+    Diagnosis,
+    MotorSample,
+    ServiceStatus,
+    ThrowEvent,
+    decode,
+    encode,
+    key_expr,
+)
+from services.bus import Received
+from services.intake import Intake
+from services.mcap_io import load_recording
+from services.processes import free_loopback_endpoint
+from services.throw_cutter import ThrowCutter
+from tests.live import ROOT, DiagnosisCollector, ServiceProcesses, client, live_bus, wait_for, wait_ready
+
+PROFILE = {"reference_t_s": [0.0, 7.0], "reference_velocity_rad_s": [0.0, 0.0]}
+KINDS = list(CHANNEL_MODELS)
+
+
+# -- the schema layer and the intake, fuzzed --------------------------------------------------
+@settings(max_examples=300, deadline=None)
+@given(key=st.one_of(st.sampled_from([key_expr(s, k) for s in ("sw1", "ghost") for k in KINDS]), st.text(max_size=40)),
+       payload=st.one_of(st.binary(max_size=300), st.dictionaries(
+           st.sampled_from(["switch_id", "seq", "t_ns", "current_a", "angle_rad", "velocity_rad_s", "throw_index",
+                            "direction", "phase", "reference_t_s", "reference_velocity_rad_s", "params", "x"]),
+           st.one_of(st.none(), st.booleans(), st.integers(), st.floats(), st.text(max_size=8),
+                     st.lists(st.floats(), max_size=3)), max_size=8).map(lambda d: json.dumps(d).encode())))
+def test_intake_turns_any_payload_into_a_message_or_a_counted_rejection(key, payload):
+    import logging
+
+    intake = Intake(logging.getLogger("fuzz"))
+    message = intake.message(Received(key, payload, 0.0))  # never raises
+    if message is not None:
+        assert type(message) is CHANNEL_MODELS[key.split("/")[2]] and message.switch_id == key.split("/")[1]
+    elif not key.startswith("railswitch/service/"):
+        assert sum(intake.rejected.values()) == 1  # every refusal is counted
+
+
+def _sample(seq: int, t_ns: int, switch_id: str = "sw1") -> MotorSample:
+    return MotorSample(switch_id=switch_id, seq=seq, t_ns=t_ns, current_a=0.0, angle_rad=0.0, velocity_rad_s=0.0)
+
+
+def _event(phase: str, index: int, t_ns: int, switch_id: str = "sw1") -> ThrowEvent:
+    return ThrowEvent(switch_id=switch_id, throw_index=index, direction="left_to_right", phase=phase, t_ns=t_ns,
+                      **PROFILE)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from(["sample", "start", "end"]), st.integers(0, 5),
+                          st.integers(0, 100 * 10**9)), max_size=60))
+def test_throw_cutter_survives_any_order_of_events_and_samples(steps):
+    problems = []
+    cutter = ThrowCutter(on_problem=lambda switch_id, reason: problems.append(reason))
+    emitted = []
+    for seq, (kind, index, t_ns) in enumerate(steps):
+        message = _sample(seq, t_ns) if kind == "sample" else _event(kind, index, t_ns)
+        throw = cutter.feed(message)
+        if throw is not None:
+            emitted.append(throw)
+    emitted.extend(cutter.flush())
+    starts = sum(1 for kind, _, _ in steps if kind == "start")
+    assert len(emitted) <= starts
+    assert all(t.end is None or t.end.throw_index == t.start.throw_index for t in emitted)
+
+
+def test_a_sample_stream_survives_one_time_from_the_future():
+    import logging
+
+    intake = Intake(logging.getLogger("test"))
+    key = key_expr("sw1", "motor")
+    assert intake.message(Received(key, encode(_sample(0, 10)), 0.0)) is not None
+    assert intake.message(Received(key, encode(_sample(1, 10**18)), 0.0)) is not None  # a bad clock value
+    accepted = [intake.message(Received(key, encode(_sample(k, 10 + k)), 0.0)) for k in range(2, 102)]
+    assert sum(m is not None for m in accepted) >= 50  # the genuine clock is followed again after a resync
+
+
+def test_a_throw_without_an_end_is_emitted_incomplete_when_the_next_starts():
+    cutter = ThrowCutter()
+    assert cutter.feed(_event("start", 0, 0)) is None
+    cutter.feed(_sample(1, 20_000_000))
+    abandoned = cutter.feed(_event("start", 1, 10**9))
+    assert abandoned is not None and abandoned.end is None and abandoned.start.throw_index == 0
+
+
+# -- junk on the live bus -------------------------------------------------------------------------
+def junk(switch_id: str, t_ns: int) -> list[tuple[str, bytes]]:
+    """Every kind of bad payload, on every key the services read, around time t_ns."""
+    sample = {"switch_id": switch_id, "seq": 3, "t_ns": t_ns, "current_a": 1.0, "angle_rad": 0.0,
+              "velocity_rad_s": 0.0}
+    bad = [
+        b"\xff\xfe\x00not json at all",
+        b'{"switch_id": "' + switch_id.encode() + b'", "seq": 1',  # truncated
+        json.dumps({**sample, "current_a": "high"}).encode(),  # wrong type
+        json.dumps({"switch_id": switch_id}).encode(),  # missing fields
+        json.dumps(sample).replace('"current_a": 1.0', '"current_a": NaN').encode(),
+        json.dumps(sample).replace('"current_a": 1.0', '"current_a": Infinity').encode(),
+        json.dumps({**sample, "current_a": 1e12}).encode(),  # absurd
+        json.dumps({**sample, "seq": -4}).encode(),  # negative seq
+        b'{"pad": "' + b"x" * (3 << 20) + b'"}',  # several megabytes
+    ]
+    out = [(key_expr(switch_id, kind), payload) for kind in KINDS for payload in bad]
+    out.append((key_expr(switch_id, "motor"), json.dumps({**sample, "t_ns": 1_000}).encode()))  # time going back
+    out.append((key_expr(switch_id, "motor"), json.dumps({**sample, "t_ns": t_ns - 10**9}).encode()))  # repeated seq
+    end = _event("end", 999, t_ns, switch_id)
+    out.append((key_expr(switch_id, "throw"), encode(end)))  # an end without its start
+    return out
+
+
+def test_junk_on_every_key_is_counted_and_the_valid_stream_still_diagnosed(tmp_path):
+    scenario = tmp_path / "s.toml"
+    scenario.write_text('interval_s = 10.0\n[[switches]]\nid = "sw1"\nthrows = 4\n'
+                        'faults = { obstacle_friction = 1e5, obstacle_position = 1.1 }\n')
+    recording = tmp_path / "junk.mcap"
+    statuses: dict[str, ServiceStatus] = {}
+    with live_bus(tmp_path) as (services, endpoint, session, collector):
+        session.declare_subscriber("railswitch/service/*/*/status", lambda s: statuses.__setitem__(
+            str(s.key_expr).split("/")[2], decode(ServiceStatus, s.payload.to_bytes())))
+        diagnoser = services.start("diagnoser", "--connect", endpoint, "--status-interval", "0.5")
+        recorder = services.start("recorder", "--connect", endpoint, "--out", str(recording), "--status-interval",
+                                  "0.5")
+        wait_ready(session, services, diagnoser=1, recorder=1)
+        simulator = services.start("simulator", "--connect", endpoint, "--scenario", str(scenario), "--speed", "5")
+        wait_for(lambda: len(collector.received) >= 1, 120, "the first diagnosis")
+        latest_t = collector.received[0].t_end_ns
+        # An unknown switch: valid start with no end, then every kind of junk.
+        session.put(key_expr("ghost", "throw"), encode(_event("start", 0, latest_t, "ghost")))
+        while simulator.poll() is None:
+            for key, payload in junk("sw1", latest_t) + junk("ghost", latest_t):
+                session.put(key, payload)
+            time.sleep(0.3)
+        assert simulator.returncode == 0, services.log(simulator)
+        wait_for(lambda: len(collector.received) >= 4, 60, "four diagnoses")
+        time.sleep(1.5)  # a status after the last junk
+        assert diagnoser.poll() is None and recorder.poll() is None
+        logs = {"diagnoser": services.log(diagnoser), "recorder": services.log(recorder)}
+    decisions = {d.throw_index: d.decision for d in collector.received if d.switch_id == "sw1"}
+    assert decisions == {k: "obstacle" for k in range(4)}
+    for name in ("diagnoser", "recorder"):
+        rejected = statuses[name].rejected
+        assert {"motor: not utf-8", "motor: not json", "motor: payload over 1 MiB",
+                "motor: time not after the previous sample's (repeated or going back)"} <= set(rejected), rejected
+        assert any(reason.startswith("motor: validation: current_a") for reason in rejected), rejected
+        assert logs[name].count("rejected a message") == len(rejected)  # one line per kind, not per message
+    assert "throw: end without its start" in statuses["diagnoser"].rejected
+    assert any(reason.startswith("truth:") for reason in statuses["recorder"].rejected)
+    seqs = [m.seq for m in load_recording(recording).messages if isinstance(m, MotorSample) and m.switch_id == "sw1"]
+    assert seqs == list(range(len(seqs)))  # junk samples never reached the file
