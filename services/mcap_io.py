@@ -111,8 +111,9 @@ class RecordingWriter:
                 self._file.unlink(missing_ok=True)
 
     def flush(self) -> None:
-        """Push finished chunks to the operating system, so a killed process loses only the open chunk."""
-        self._stream.flush()
+        """Close the chunk in progress and hand everything to the operating system: a process
+        killed after this loses nothing written before it."""
+        self._writer.flush()
 
     def write(self, key: str, message: Message, log_time_ns: int | None = None) -> None:
         """Append message on the channel of key; log time defaults to the message's t_ns."""

@@ -1,10 +1,11 @@
 """`railswitch recorder --out F.mcap`: every switch channel on the bus into one MCAP file.
 
 Channels, schemas and log times are those of `railswitch simulate` (DESIGN.md section 5),
-plus the diagnosis and inject channels. The file is finished on SIGINT and SIGTERM; chunks
-of 16 KiB are pushed to the operating system at least every second, so a killed recorder
-loses only the chunk it was filling (about 2 s of one switch, less for a fleet), and
-`railswitch recover` turns what it left into a complete file.
+plus the diagnosis and inject channels. The file is finished on SIGINT and SIGTERM; the
+chunk in progress is closed and handed to the operating system every second, so a killed
+recorder loses at most about a second, and `railswitch recover` turns what it left into a
+complete file. Closing chunks by time rather than by a small size keeps the writer's
+in-memory chunk index small over long recordings.
 """
 from __future__ import annotations
 
@@ -22,7 +23,7 @@ from services.mcap_io import RecordingPathError, RecordingWriter
 log = logging.getLogger("railswitch.recorder")
 
 FLUSH_S = 1.0
-CHUNK_BYTES = 16_384  # about 2 s of one switch at 50 Hz: what a killed recorder can lose
+CHUNK_BYTES = 1 << 20  # a chunk also closes every FLUSH_S, so few chunks (and index entries) even for a fleet
 MIN_FREE_BYTES = 64 * 2**20
 
 
