@@ -247,4 +247,5 @@ def configure_logging(verbose: bool = False) -> None:
     """One line per event on stderr, with the service's name."""
     logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s", datefmt="%H:%M:%S")
+    zenoh.try_init_log_from_env()  # RUST_LOG=debug shows why a link is refused (TLS, credentials)
 
