@@ -143,13 +143,13 @@ def run_demo(args) -> int:
             processes.start("recorder", "--connect", connect, "--out", str(out))
             wait_for(lambda: stop.is_set() or _ready(router), READY_TIMEOUT_S, "the diagnoser and the recorder",
                      poll_s=0.5, abort=lambda: _exited(processes))
-            console.print(f"simulating {args.switches} switches x {args.throws} throws at {args.speed:g}x real time")
-            simulator = processes.start("simulator", "--connect", connect, "--scenario", str(scenario),
-                                        "--speed", str(args.speed))
-            expected = args.switches * args.throws
-            _follow(inbox, outcome, console, simulator, expected, stop)
-            if simulator.returncode:
-                raise RuntimeError(f"simulator failed:\n{processes.log(simulator, 8)}")
+            if not stop.is_set():
+                console.print(f"simulating {args.switches} switches x {args.throws} throws at {args.speed:g}x real time")
+                simulator = processes.start("simulator", "--connect", connect, "--scenario", str(scenario),
+                                            "--speed", str(args.speed))
+                _follow(inbox, outcome, console, simulator, args.switches * args.throws, stop)
+                if simulator.returncode:
+                    raise RuntimeError(f"simulator failed:\n{processes.log(simulator, 8)}")
         except (RuntimeError, TimeoutError) as error:
             print(f"railswitch demo: {error}", file=sys.stderr)
             return 1

@@ -157,3 +157,36 @@ def test_demo_with_small_settings_exits_0_and_writes_its_recording(tmp_path):
     with open(out, "rb") as f:
         topics = {channel.topic for _, channel, _ in make_reader(f).iter_messages()}
     assert {key_expr(s, "diagnosis") for s in ("sw1", "sw2")} <= topics
+
+
+def _processes_mentioning(text: str) -> list[int]:
+    pids = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                if text in (entry / "cmdline").read_bytes().decode(errors="replace"):
+                    pids.append(int(entry.name))
+            except OSError:
+                continue
+    return pids
+
+
+def test_ctrl_c_stops_the_demos_processes_and_still_finishes_its_recording(tmp_path):
+    out = tmp_path / "interrupted.mcap"
+    demo = subprocess.Popen([sys.executable, "-m", "services.cli", "demo", "--switches", "2", "--throws", "20",
+                             "--speed", "2", "--out", str(out)], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    try:
+        wait_for(lambda: out.exists() and len(_processes_mentioning(str(out))) >= 2, 300, "the demo's recorder")
+        time.sleep(8.0)  # a throw or two
+        demo.send_signal(signal.SIGINT)
+        output, _ = demo.communicate(timeout=120)
+    finally:
+        if demo.poll() is None:
+            demo.kill()
+    assert demo.returncode == 130, output
+    assert "stopped early" in output and "recording:" in output
+    assert _processes_mentioning(str(out)) == []  # the recorder (and the rest) stopped with it
+    with open(out, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics.message_count > 100
