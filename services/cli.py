@@ -377,7 +377,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo = commands.add_parser("demo", help="router, simulator, diagnoser and recorder with a live table and summary")
     demo.add_argument("--switches", type=bounded(int, 1, 50), default=4)
     demo.add_argument("--throws", type=bounded(int, 2, 1000), default=4, help="throws per switch")
-    demo.add_argument("--speed", type=bounded(float, 0.1, 1000.0, "x real time"), default=4.0)
+    demo.add_argument("--speed", type=bounded(float, 0.1, 1000.0, "x real time"), default=1.0)
     demo.add_argument("--out", default="demo.mcap", metavar="F.mcap")
     demo.add_argument("--listen", default=None, metavar="ENDPOINT",
                       help="endpoint of the embedded router (default: a free loopback port)")
