@@ -34,7 +34,7 @@ SCALES = {"left_bolt_offset": 0.05, "right_bolt_offset": 0.05, "bearing_friction
 TOLERANCE = 1e-6  # relative decrease of the MSE below which a fit has converged
 HYPOTHESES: dict[str, tuple[str, ...]] = {"nominal": (), **MODE_PARAMETERS, "joint": tuple(FAULT_ORDER)}
 # Cheap global starts: residual-only evaluations on a grid, the best one starts the solver.
-_BOLT_GRID = np.arange(-0.02, 0.2001, 0.02)
+_BOLT_GRID = np.arange(-0.02, 0.2001, 0.01)
 _OBSTACLE_GRID = [{"obstacle_position": p, "obstacle_friction": f}
                   for p in np.arange(1.02, 1.1801, 0.01) for f in (3e4, 1.5e5)]
 GRID_STARTS: dict[str, list[dict[str, float]]] = {

@@ -51,6 +51,10 @@ class ReducedParams:
     latch_rate_1_s: float = 50.0
     contact_width_m: float = 2e-4
     voltage_corner_v: float = 1.0
+    # The bearing fault's port: drive-point damping = gain * bearing_friction + offset (N·s/m). The plant
+    # spreads bearing friction along flexible rails; calibrated per representation (models/params/*.json).
+    bearing_gain: float = 1.0
+    bearing_offset_s_m: float = 0.0
 
 
 def stock_rail_force(params: ReducedParams, x, v):
@@ -148,7 +152,8 @@ class ReducedSwitch:
         drive_force = p.drive.linkage_ratio * rod_force
         lock = lock_terms(self._lock, p.drive, self._adjuster, p.rail.left_stock_m, p.rail.right_stock_m, x, rod_m, hooks,
                           faults["left_bolt_offset"], faults["right_bolt_offset"], self.params.contact_width_m)
-        external = (drive_force + lock.force_n + stock_rail_force(self.params, x, v) - faults["bearing_friction"] * v
+        external = (drive_force + lock.force_n + stock_rail_force(self.params, x, v)
+                    - (self.params.bearing_gain * faults["bearing_friction"] + self.params.bearing_offset_s_m) * v
                     - faults["obstacle_friction"] * obstacle_profile(p.obstacle, x, faults["obstacle_position"]) * v)
         if frozen_rail is None:
             acceleration = self.representation.acceleration(x, v, external, w)

@@ -102,9 +102,22 @@ def cmd_train(args) -> int:
     try:
         for name in names:
             path, seconds = train_and_save(name, seed=args.seed, iterations=args.iterations, out_dir=args.out)
-            print(f"trained {name} in {seconds:.1f} s: {path}")
+            print(f"trained {name} in {seconds:.1f} s: {path} (then `railswitch calibrate --model {name}`)")
     except OSError as error:
         return _fail(f"cannot write the parameters: {error}")
+    return 0
+
+
+def cmd_calibrate(args) -> int:
+    from services.reduced_models import calibrate_and_save
+
+    names = ["poly", "nn", "causal"] if args.model == "all" else [args.model]
+    try:
+        for name in names:
+            path, port = calibrate_and_save(name)
+            print(f"{name}: bearing port gain {port['gain']:.4f}, offset {port['offset_s_m']:.1f} N·s/m -> {path}")
+    except OSError as error:
+        return _fail(f"cannot write the calibration: {error}")
     return 0
 
 
@@ -308,6 +321,10 @@ def build_parser() -> argparse.ArgumentParser:
                        help="Levenberg-Marquardt iterations per fitting stage")
     train.add_argument("--out", default=None, metavar="DIR", help="where to write <model>.json (default: the shipped models/params)")
     train.set_defaults(handler=cmd_train)
+
+    calibrate = commands.add_parser("calibrate", help="calibrate the shipped models' bearing-fault port on plant throws")
+    calibrate.add_argument("--model", choices=["poly", "nn", "causal", "all"], default="all")
+    calibrate.set_defaults(handler=cmd_calibrate)
 
     report = commands.add_parser("report", help="PNG pictures of the throws in one or more recordings")
     report.add_argument("recordings", nargs="+", metavar="F.mcap")

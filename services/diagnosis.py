@@ -16,7 +16,7 @@ import numpy as np
 
 from models.diagnosis import SwitchDiagnoser, ThrowInput, ThrowVerdict, commissioning_gains
 from models.estimation import ThrowEstimator
-from models.params import load
+from models.params import bearing_port, load
 from models.plant import Plant
 from models.reduced import ReducedParams, ReducedSwitch
 from models.reference import Reference
@@ -43,6 +43,7 @@ class Diagnoser:
     model: str = "poly"
     compiled: bool = True
     switches: dict[str, SwitchDiagnoser] = field(default_factory=dict)
+    port: dict[str, float] | None = None  # the bearing port; None: the shipped calibration
 
     def __post_init__(self) -> None:
         if self.model not in MODELS:
@@ -56,7 +57,10 @@ class Diagnoser:
         directory ($XDG_CACHE_HOME or ~/.cache, then railswitch); where that cannot be made, once per process.
         """
         representation, weights, _ = load(self.model)
-        reduced = ReducedSwitch(representation, weights, ReducedParams(substeps=DIAGNOSIS_SUBSTEPS), rate_hz=rate_hz)
+        port = self.port or bearing_port(self.model)
+        params = ReducedParams(substeps=DIAGNOSIS_SUBSTEPS, bearing_gain=port["gain"],
+                               bearing_offset_s_m=port["offset_s_m"])
+        reduced = ReducedSwitch(representation, weights, params, rate_hz=rate_hz)
         try:
             cache_dir = Path(os.environ.get("RAILSWITCH_CACHE")
                              or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "railswitch")

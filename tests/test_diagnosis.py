@@ -159,3 +159,22 @@ def test_diagnose_on_a_truncated_recording_reports_the_damage_in_one_line(tmp_pa
     assert "Traceback" not in result.stderr
     assert "truncated" in result.stderr and "recovered" in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1
+
+
+def test_missing_bearing_of_the_paper_is_estimated_within_3_percent_through_the_calibrated_port(diagnoser):
+    """5000 N·s/m is not among the calibration points (2000, 3500, 8000)."""
+    diagnoses = diagnose(diagnoser, load_recording(RECORDINGS / "missing_bearing.mcap").messages)
+    estimates = [next(h for h in d.hypotheses if h.mode == "missing_bearing").params["bearing_friction"]
+                 for d in diagnoses]
+    assert all(abs(e - 5000.0) / 5000.0 < 0.03 for e in estimates), estimates
+
+
+def test_shipped_bearing_port_is_what_calibration_on_the_plant_gives(plant):
+    from models.params import bearing_port
+    from services.reduced_models import calibrate_bearing_port
+
+    fresh = calibrate_bearing_port("poly", plant)
+    shipped = bearing_port("poly")
+    assert fresh["gain"] == pytest.approx(shipped["gain"], rel=1e-3)
+    assert fresh["offset_s_m"] == pytest.approx(shipped["offset_s_m"], abs=5.0)
+    assert 0.9 < shipped["gain"] < 1.0  # distributed friction acts at the drive point a little weaker

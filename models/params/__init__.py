@@ -16,12 +16,24 @@ def weights_document(representation: Representation, weights: np.ndarray, traini
             "weights": {k: np.asarray(v).tolist() for k, v in named.items()}, "training": training}
 
 
-def load(name: str) -> tuple[Representation, np.ndarray, dict]:
-    """Representation, flat weights and training provenance of a shipped model."""
+NEUTRAL_PORT = {"gain": 1.0, "offset_s_m": 0.0}
+
+
+def _document(name: str) -> dict:
     if name not in REPRESENTATIONS:
         raise ValueError(f"unknown rail model {name!r}; accepted: {', '.join(REPRESENTATIONS)}")
-    text = resources.files(__name__).joinpath(f"{name}.json").read_text()
-    document = json.loads(text)
+    return json.loads(resources.files(__name__).joinpath(f"{name}.json").read_text())
+
+
+def bearing_port(name: str) -> dict[str, float]:
+    """The calibrated bearing-fault port of a shipped model (neutral when never calibrated)."""
+    port = _document(name).get("bearing_port", NEUTRAL_PORT)
+    return {"gain": float(port["gain"]), "offset_s_m": float(port["offset_s_m"])}
+
+
+def load(name: str) -> tuple[Representation, np.ndarray, dict]:
+    """Representation, flat weights and training provenance of a shipped model."""
+    document = _document(name)
     representation = REPRESENTATIONS[name]
     weights = representation.flatten({k: np.array(v) for k, v in document["weights"].items()})
     return representation, weights, document["training"]
