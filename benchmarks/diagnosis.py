@@ -22,8 +22,7 @@ from models.plant import Plant
 from models.switch import SwitchSimulation
 from schemas import Diagnosis
 from services.mcap_io import load_recording
-from services.diagnosis import Diagnoser, diagnose_messages
-from services.switch_messages import switch_messages
+from services.diagnosis import Diagnoser, diagnose_messages, diagnose_simulation
 
 RECORDINGS = Path(__file__).resolve().parent.parent / "recordings"
 PAPER_SCENARIOS = {  # recording -> (mode, injected parameters), as in recordings/make.sh
@@ -64,8 +63,7 @@ def relative_errors(estimate: dict[str, float], truth: dict[str, float]) -> dict
 def run_case(diagnoser: Diagnoser, plant: Plant, switch_id: str, faults: dict, noise: float, seed: int,
              throws: int = 2) -> list[Diagnosis]:
     sim = SwitchSimulation(plant, faults=faults, noise_rel=noise, seed=seed)
-    messages = [message for _, message in switch_messages(switch_id, sim, throws)]
-    return [item.diagnosis for item in diagnose_messages(messages, diagnoser)]
+    return [item.diagnosis for item in diagnose_simulation(diagnoser, switch_id, sim, throws)]
 
 
 def main() -> None:

@@ -45,6 +45,11 @@ class Throw:
         return self.samples.first_index + len(self.samples) - 1
 
 
+def sample_time_ns(start_ns: int, sample_index: int, rate_hz: float) -> int:
+    """Integer nanoseconds of a sample index: start_ns plus its time from the simulation's start."""
+    return start_ns + round(sample_index * 1_000_000_000 / rate_hz)
+
+
 @lru_cache(maxsize=4)
 def nominal_peaks(plant: Plant, rate_hz: float = 50.0) -> dict[str, float]:
     """Peak magnitude of each measured signal over a nominal left-right-left pair of throws."""
@@ -114,8 +119,7 @@ class SwitchSimulation:
         return samples
 
     def time_ns(self, sample_index: int) -> int:
-        """Integer nanoseconds of a sample index: start_ns plus its time from the simulation's start."""
-        return self.start_ns + round(sample_index * 1_000_000_000 / self.rate_hz)
+        return sample_time_ns(self.start_ns, sample_index, self.rate_hz)
 
 
 @dataclass(frozen=True)
@@ -181,4 +185,4 @@ class ReplayedSwitch:
         return samples
 
     def time_ns(self, sample_index: int) -> int:
-        return self.start_ns + round(sample_index * 1_000_000_000 / self.rate_hz)
+        return sample_time_ns(self.start_ns, sample_index, self.rate_hz)

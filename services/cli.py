@@ -95,10 +95,17 @@ def cmd_describe(args) -> int:
     return 0
 
 
+def _models(choice: str) -> list[str]:
+    """The reduced models a --model choice names ("all": every one)."""
+    from services.diagnosis import MODELS
+
+    return list(MODELS) if choice == "all" else [choice]
+
+
 def cmd_train(args) -> int:
     from services.reduced_models import train_and_save
 
-    names = ["poly", "nn", "causal"] if args.model == "all" else [args.model]
+    names = _models(args.model)
     try:
         for name in names:
             path, seconds = train_and_save(name, seed=args.seed, iterations=args.iterations, out_dir=args.out)
@@ -111,7 +118,7 @@ def cmd_train(args) -> int:
 def cmd_calibrate(args) -> int:
     from services.reduced_models import calibrate_and_save
 
-    names = ["poly", "nn", "causal"] if args.model == "all" else [args.model]
+    names = _models(args.model)
     try:
         for name in names:
             path, port = calibrate_and_save(name)
@@ -178,11 +185,12 @@ def _live(run: Callable[[object, threading.Event], int | None], args) -> int:
 def cmd_router(args) -> int:
     from dataclasses import replace
 
+    from services.bus import DEFAULT_ENDPOINT
     from services.router import run_router
 
     def run(options, stop):
         if not options.listen and not options.config_file:
-            options = replace(options, listen=("tcp/127.0.0.1:7447",))
+            options = replace(options, listen=(DEFAULT_ENDPOINT,))
         run_router(replace(options, mode="router"), stop=stop)
     return _live(run, args)
 
@@ -209,6 +217,7 @@ def _scenario_from_args(args):
 
 
 def cmd_simulator(args) -> int:
+    from models.switch import ReplayedSwitch
     from services.mcap_io import load_recording
     from services.simulator import recorded_throws, run_simulator
 
@@ -216,11 +225,11 @@ def cmd_simulator(args) -> int:
     if args.throws_from:
         try:
             library = recorded_throws(load_recording(args.throws_from).messages)
+            ReplayedSwitch(library)  # its own check (a complete throw each way), before connecting
         except OSError as error:
             return _fail(f"cannot read {args.throws_from}: {error.strerror}")
-        directions = {throw.direction for throw in library}
-        if len(directions) < 2:
-            return _fail(f"{args.throws_from} needs a complete throw in each direction, found {len(library)} throws")
+        except ValueError as error:
+            return _fail(f"{args.throws_from}: {error}")
     return _live(lambda options, stop: run_simulator(options, _scenario_from_args(args), speed=args.speed,
                                                      stop=stop, library=library, status_s=args.status_interval), args)
 

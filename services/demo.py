@@ -22,10 +22,11 @@ from rich.live import Live
 from rich.table import Table
 
 from models.diagnosis import DRIVING_BOLT
-from schemas import Diagnosis, FaultTruth, MessageError, decode, parse_key_expr
+from schemas import Diagnosis, FaultTruth
 from services.bus import BusError, BusOptions, Inbox, configure_logging, open_session, stop_on_signals
 from services.mcap_io import RecordingPathError, check_writable
-from services.processes import ServiceProcesses, free_loopback_endpoint, services_alive, wait_for
+from services.intake import Intake
+from services.processes import ServiceProcesses, free_loopback_endpoint, wait_ready
 from services.watch import diagnosis_line, diagnosis_table
 
 log = logging.getLogger("railswitch.demo")
@@ -103,18 +104,6 @@ class Outcome:
         return table, correct
 
 
-def _ready(router) -> bool:
-    alive = services_alive(router)
-    return alive["diagnoser"] >= 1 and alive["recorder"] >= 1
-
-
-def _exited(processes: ServiceProcesses) -> str | None:
-    for name, _, process in processes.started:
-        if process.pid not in processes.stopped and process.poll() is not None:
-            return f"{name} exited early with code {process.returncode}:\n{processes.log(process, 8)}"
-    return None
-
-
 def run_demo(args) -> int:
     configure_logging(False)
     console = Console()
@@ -141,8 +130,7 @@ def run_demo(args) -> int:
             console.print(f"router on {listen}; starting diagnoser ({args.model}) and recorder ({out})")
             processes.start("diagnoser", "--connect", connect, "--model", args.model)
             processes.start("recorder", "--connect", connect, "--out", str(out))
-            wait_for(lambda: stop.is_set() or _ready(router), READY_TIMEOUT_S, "the diagnoser and the recorder",
-                     poll_s=0.5, abort=lambda: _exited(processes))
+            wait_ready(router, processes, READY_TIMEOUT_S, stop=stop, diagnoser=1, recorder=1)
             if not stop.is_set():
                 console.print(f"simulating {args.switches} switches x {args.throws} throws at {args.speed:g}x real time")
                 simulator = processes.start("simulator", "--connect", connect, "--scenario", str(scenario),
@@ -170,6 +158,7 @@ def _follow(inbox: Inbox, outcome: Outcome, console: Console, simulator: subproc
             stop: threading.Event) -> None:
     """Show diagnoses as they come, until every throw has one (or the simulator failed, or stop)."""
     latest: dict[str, Diagnosis] = {}
+    intake = Intake(log, kinds=("diagnosis", "truth"))
     drain_deadline = None
     live = console.is_terminal
     with Live(diagnosis_table(latest), console=console, auto_refresh=False) if live else nullcontext() as table:
@@ -181,12 +170,8 @@ def _follow(inbox: Inbox, outcome: Outcome, console: Console, simulator: subproc
                 if time.monotonic() > drain_deadline:
                     break
             item = inbox.get(0.2)
-            if item is None:
-                continue
-            try:
-                _, kind = parse_key_expr(item.key)
-                message = decode(Diagnosis if kind == "diagnosis" else FaultTruth, item.payload)
-            except (ValueError, MessageError):
+            message = None if item is None else intake.message(item)
+            if message is None:
                 continue
             if isinstance(message, FaultTruth):
                 outcome.truths.setdefault(message.switch_id, []).append(message)

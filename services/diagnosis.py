@@ -20,7 +20,9 @@ from models.params import bearing_port, load
 from models.plant import Plant
 from models.reduced import ReducedParams, ReducedSwitch
 from models.reference import Reference
+from models.switch import SwitchSimulation
 from schemas import Diagnosis, Hypothesis, Message
+from services.switch_messages import switch_messages
 from services.throw_cutter import CutThrow, ThrowCutter
 
 MODELS = ("poly", "nn", "causal")
@@ -105,6 +107,11 @@ def throw_input(throw: CutThrow) -> ThrowInput:
     reference = Reference(np.asarray(start.reference_t_s, dtype=float), np.asarray(start.reference_velocity_rad_s, dtype=float))
     return ThrowInput(start.direction, reference, throw.t_s, throw.current_a, throw.angle_rad, throw.velocity_rad_s,
                       None if end is None else (end.t_ns - start.t_ns) * 1e-9, throw.missing_samples)
+
+
+def diagnose_simulation(diagnoser: Diagnoser, switch_id: str, sim: SwitchSimulation, throws: int) -> list[DiagnosedThrow]:
+    """Run `throws` throws of a simulated switch and diagnose each, as the bus would carry them."""
+    return list(diagnose_messages((message for _, message in switch_messages(switch_id, sim, throws)), diagnoser))
 
 
 def diagnose_messages(messages: Iterable[Message], diagnoser: Diagnoser) -> Iterator[DiagnosedThrow]:

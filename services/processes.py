@@ -6,6 +6,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -96,13 +97,15 @@ def wait_for(condition: Callable[[], bool], timeout_s: float, what: str, poll_s:
         time.sleep(poll_s)
 
 
-def wait_ready(session: zenoh.Session, processes: ServiceProcesses, timeout_s: float = 300.0, **counts: int) -> None:
-    """Until `counts` instances of each named service are up (diagnosers: subscribed and warmed up)."""
+def wait_ready(session: zenoh.Session, processes: ServiceProcesses, timeout_s: float = 300.0,
+               stop: threading.Event | None = None, **counts: int) -> None:
+    """Until `counts` instances of each named service are up (diagnosers: subscribed and warmed up), or stop."""
     def exited() -> str | None:
         for name, _, process in processes.started:
             if name in counts and process.pid not in processes.stopped and process.poll() is not None:
                 return f"{name} exited with code {process.returncode}:\n{processes.log(process, 8)}"
         return None
 
-    wait_for(lambda: all(services_alive(session)[n] >= c for n, c in counts.items()), timeout_s,
+    stopped = stop.is_set if stop is not None else lambda: False
+    wait_for(lambda: stopped() or all(services_alive(session)[n] >= c for n, c in counts.items()), timeout_s,
              f"services {counts} to be ready", poll_s=0.5, abort=exited)

@@ -53,17 +53,16 @@ def calibrate_bearing_port(name: str, plant: Plant | None = None) -> dict:
     through the neutral port, give estimate = gain * friction + offset by least squares; the diagnosis
     then uses that port, so its estimates come back in the plant's terms."""
     from models.switch import SwitchSimulation
-    from services.diagnosis import Diagnoser, diagnose_messages
-    from services.switch_messages import switch_messages
+    from services.diagnosis import Diagnoser, diagnose_simulation
 
     plant = plant or Plant()
     diagnoser = Diagnoser(name, port=dict(shipped.NEUTRAL_PORT))
     estimates = []
     for value in CALIBRATION_BEARINGS:
         sim = SwitchSimulation(plant, faults={"bearing_friction": value})
-        messages = [message for _, message in switch_messages(f"calibration{int(value)}", sim, 2)]
         fits = [item.verdict.estimates["missing_bearing"].params["bearing_friction"]
-                for item in diagnose_messages(messages, diagnoser) if item.verdict is not None]
+                for item in diagnose_simulation(diagnoser, f"calibration{int(value)}", sim, 2)
+                if item.verdict is not None]
         estimates.append(float(np.mean(fits)))
     gain, offset = np.polyfit(CALIBRATION_BEARINGS, estimates, 1)
     return {"gain": round(float(gain), 5), "offset_s_m": round(float(offset), 2),

@@ -5,7 +5,7 @@ is printed as one line as it arrives, so the output can be piped or logged.
 """
 from __future__ import annotations
 
-import sys
+import logging
 import threading
 import time
 from contextlib import nullcontext
@@ -14,8 +14,11 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from schemas import FAULT_PARAMETERS, Diagnosis, MessageError, decode
+from schemas import FAULT_PARAMETERS, Diagnosis, key_expr
 from services.bus import BusOptions, Inbox, open_session
+from services.intake import Intake
+
+log = logging.getLogger("railswitch.watch")
 
 DECISION_STYLE = {"nominal": "green", "unknown": "yellow"}
 
@@ -59,8 +62,9 @@ def run_watch(options: BusOptions, *, switch_ids: list[str], count: int | None, 
     """Show diagnoses until stop, `count` diagnoses or `duration_s`; returns how many arrived."""
     session = open_session(options, stop=stop)
     try:
-        keys = [f"railswitch/{s}/diagnosis" for s in switch_ids] or ["railswitch/*/diagnosis"]
+        keys = [key_expr(s, "diagnosis") for s in switch_ids] or ["railswitch/*/diagnosis"]
         inbox = Inbox(session, keys)
+        intake = Intake(log, kinds=("diagnosis",))  # junk is counted and logged once per kind
         console = Console(stderr=False)
         live_table = console.is_terminal and not jsonl
         latest: dict[str, Diagnosis] = {}
@@ -71,12 +75,8 @@ def run_watch(options: BusOptions, *, switch_ids: list[str], count: int | None, 
                 if deadline is not None and time.monotonic() > deadline:
                     break
                 item = inbox.get(0.2)
-                if item is None:
-                    continue
-                try:
-                    diagnosis = decode(Diagnosis, item.payload)
-                except MessageError as error:
-                    print(f"railswitch watch: skipped a message on {item.key}: {error}", file=sys.stderr)
+                diagnosis = None if item is None else intake.message(item)
+                if diagnosis is None:
                     continue
                 received += 1
                 latest[diagnosis.switch_id] = diagnosis

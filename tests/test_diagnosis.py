@@ -14,8 +14,7 @@ from models.reference import throw_reference
 from models.switch import SwitchSimulation
 from schemas import Diagnosis, MotorSample, ThrowEvent, decode
 from services.mcap_io import load_recording
-from services.diagnosis import Diagnoser, diagnose_messages
-from services.switch_messages import switch_messages
+from services.diagnosis import Diagnoser, diagnose_messages, diagnose_simulation
 from services.throw_cutter import cut_throws
 
 RECORDINGS = Path(__file__).resolve().parent.parent / "recordings"
@@ -52,8 +51,8 @@ def test_nominal_recording_is_nominal(diagnoser):
 @pytest.mark.parametrize("seed", [11, 12])
 def test_nominal_throws_with_one_percent_noise_are_nominal(diagnoser, plant, seed):
     sim = SwitchSimulation(plant, noise_rel=0.01, seed=seed)
-    messages = [m for _, m in switch_messages("noisy", sim, 2)]
-    assert [d.decision for d in diagnose(diagnoser, messages)] == ["nominal", "nominal"]
+    diagnoser.switches.clear()
+    assert [item.diagnosis.decision for item in diagnose_simulation(diagnoser, "noisy", sim, 2)] == ["nominal", "nominal"]
 
 
 @pytest.mark.parametrize("direction, mode, truth", [
