@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from models.estimation import Estimate, Measurement, ThrowEstimator
+from models.estimation import DRIVING_BOLT, Estimate, Measurement, ThrowEstimator
 from models.plant import Plant
 from models.reference import DIRECTIONS, Reference
 from models.switch import SwitchSimulation
@@ -28,7 +28,6 @@ from schemas.faults import MODE_PARAMETERS
 
 FALSE_ALARM_RATE = 1e-3  # per fault mode and throw, under the nominal hypothesis
 MODEL_ERROR_MARGIN = 2.0  # model error varies from throw to throw: allow twice what commissioning saw
-DRIVING_BOLT = {"left_to_right": "left_bolt", "right_to_left": "right_bolt"}
 OTHER_DIRECTION = {"left_to_right": "right_to_left", "right_to_left": "left_to_right"}
 CLOSED_START_M = {"left_to_right": 1.0, "right_to_left": 1.2}  # where a throw starts when the last one closed
 GAP_TOLERANCE = 0.25  # of a sample period, for "the samples are evenly spaced"

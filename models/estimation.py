@@ -8,8 +8,11 @@ Levenberg-Marquardt on CasADi's exact Jacobian (Gauss-Newton Hessian), a coarse
 grid of cheap residual evaluations as global start where the error is
 multimodal (a bolt offset or an obstacle position moves the instant something
 happens, not only its size), standard deviations from the Gauss-Newton Hessian
-and the residual variance. The residual and its Jacobian are two CasADi
+and the residual variance. The residual, its Jacobians (forward sensitivities
+along one, two or all fault parameters) and the grid's costs are CasADi
 Functions built (and compiled) once per estimator and reused for every throw.
+A fit stops when the MSE falls by less than TOLERANCE in an iteration, a change
+no decision can see, or when it can no longer fit better than another hypothesis.
 
 The rail is not measured, so each throw starts from a given rail position: the
 end of the previous throw's fit, or the closed position.
@@ -31,20 +34,28 @@ MEASURED = ("current_a", "angle_rad", "velocity_rad_s")
 # Order-one scales of the parameters for the solver.
 SCALES = {"left_bolt_offset": 0.05, "right_bolt_offset": 0.05, "bearing_friction": 5e3,
           "obstacle_friction": 1e5, "obstacle_position": 0.05}
-TOLERANCE = 1e-6  # relative decrease of the MSE below which a fit has converged
+# Derivative directions of the compiled linearisations: one- and two-parameter modes, the joint fit.
+LINEARISED_DIRECTIONS = (1, 2, len(FAULT_ORDER))
+TOLERANCE = 1e-4  # relative decrease of the MSE below which a fit has converged
 HYPOTHESES: dict[str, tuple[str, ...]] = {"nominal": (), **MODE_PARAMETERS, "joint": tuple(FAULT_ORDER)}
-# Cheap global starts: residual-only evaluations on a grid, the best one starts the solver.
-_BOLT_GRID = np.arange(-0.02, 0.2001, 0.01)
+# A bolt drives the blades in one direction only (the left bolt from left to right).
+DRIVING_BOLT = {"left_to_right": "left_bolt", "right_to_left": "right_bolt"}
+# Cheap global starts: residual-only evaluations on a coarse grid, refined once by evaluating the
+# neighbours half a step away along the parameter that moves where things happen (a bolt offset,
+# the obstacle position); the best point starts the solver. The bolt that does not drive this
+# throw (it shows only at the start of the throw) has no grid: it starts where earlier throws left it.
+GRID_STEP = {"left_bolt_offset": 0.02, "right_bolt_offset": 0.02, "obstacle_position": 0.02}
+_BOLT_GRID = np.arange(-0.02, 0.2001, GRID_STEP["left_bolt_offset"])
 _OBSTACLE_GRID = [{"obstacle_position": p, "obstacle_friction": f}
-                  for p in np.arange(1.02, 1.1801, 0.01) for f in (3e4, 1.5e5)]
-GRID_STARTS: dict[str, list[dict[str, float]]] = {
-    "left_bolt": [{"left_bolt_offset": b} for b in _BOLT_GRID],
-    "right_bolt": [{"right_bolt_offset": b} for b in _BOLT_GRID],
-    "missing_bearing": [{"bearing_friction": f} for f in (0.0, 1e3, 3e3, 6e3, 1e4)],
-    "obstacle": _OBSTACLE_GRID,
+                  for p in np.arange(1.02, 1.1801, GRID_STEP["obstacle_position"]) for f in (3e4, 1.5e5)]
+GRID_STARTS: dict[str, dict[str, list[dict[str, float]]]] = {
+    direction: {
+        bolt: [{MODE_PARAMETERS[bolt][0]: b} for b in _BOLT_GRID],
+        "missing_bearing": [{"bearing_friction": f} for f in (0.0, 1e3, 3e3, 6e3, 1e4)],
+        "obstacle": _OBSTACLE_GRID,
+    } for direction, bolt in DRIVING_BOLT.items()
 }
-
-_GRID_POINTS = [point for points in GRID_STARTS.values() for point in points]
+_GRID_SIZE = {len([p for points in grids.values() for p in points]) for grids in GRID_STARTS.values()}.pop()
 
 
 @dataclass(frozen=True)
@@ -60,6 +71,11 @@ class Measurement:
     # Faults known from earlier throws that this throw cannot show (the other direction's bolt):
     # held at these values in every hypothesis that does not free them.
     background: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def direction(self) -> str:
+        """Which way the reference turns the motor: forward is left to right."""
+        return "left_to_right" if float(np.sum(self.reference.velocity_rad_s)) > 0 else "right_to_left"
 
     def matrix(self) -> np.ndarray:
         return np.column_stack([self.current_a, self.angle_rad, self.velocity_rad_s])
@@ -102,24 +118,31 @@ class ThrowEstimator:
         refs = ca.MX.sym("refs", 2, samples)
         measured = ca.MX.sym("measured", samples, len(MEASURED))
         inverse_scale = ca.MX.sym("inverse_scale", 1, len(MEASURED))
-        y, _ = reduced._rollout(samples)(s0, refs, theta, reduced.weights)
-        fitted = ca.horzcat(*[y[OUTPUTS.index(name), :].T for name in MEASURED])
-        # Divided by sqrt(3N), so that r'r is the mean squared error of the scaled signals.
-        residual = ca.vec((fitted - measured) * ca.repmat(inverse_scale, samples, 1)) / np.sqrt(samples * len(MEASURED))
         inputs = [theta, s0, refs, measured, inverse_scale]
-        direction = ca.MX.sym("direction", len(FAULT_ORDER))
-        functions = [  # forward mode: one direction is cheaper than a full Jacobian for one free parameter
-            ca.Function("throw_residual", inputs, [residual]),
-            ca.Function("throw_jacobian", inputs, [residual, ca.jacobian(residual, theta)]),
-            ca.Function("throw_directional", [*inputs, direction], [residual, ca.jtimes(residual, theta, direction)]),
-        ]
+
+        def scaled(outputs):
+            """The measured signals' rows of a 6xN output block, scaled, stacked signal by signal and
+            divided by sqrt(3N), so that r'r is the mean squared error of the scaled signals."""
+            fitted = ca.horzcat(*[outputs[OUTPUTS.index(name), :].T for name in MEASURED])
+            return ca.vec(fitted * ca.repmat(inverse_scale, samples, 1)) / np.sqrt(samples * len(MEASURED))
+
+        y, _ = reduced._rollout(samples)(s0, refs, theta, reduced.weights)
+        residual = scaled(y) - scaled(measured.T)
+        functions = [ca.Function("throw_residual", inputs, [residual])]
+        for k in LINEARISED_DIRECTIONS:  # residual and its derivative along k fault directions
+            seeds = ca.MX.sym("seeds", len(FAULT_ORDER), k)
+            y, y_dot = reduced.sensitivity_rollout(samples, k)(s0, refs, theta, seeds, reduced.weights)
+            jacobian = ca.horzcat(*[scaled(y_dot[j * len(OUTPUTS):(j + 1) * len(OUTPUTS), :]) for j in range(k)])
+            functions.append(ca.Function(f"throw_linearised{k}", [*inputs, seeds],
+                                         [scaled(y) - scaled(measured.T), jacobian]))
         cost = ca.Function("throw_cost", inputs, [ca.sumsqr(residual)])
-        functions.append(cost.map(len(_GRID_POINTS)))  # every grid start in one call
+        functions.append(cost.map(_GRID_SIZE))  # every grid start in one call
         self.compiled = False
         if compiled:
             functions, flags = zip(*(jit_compiled(f, cache_dir) for f in functions))
             self.compiled = all(flags)
-        self._residual_fn, self._jacobian_fn, self._directional_fn, self._grid_fn = functions
+        self._residual_fn, *linearised, self._grid_fn = functions
+        self._linearised_fn = dict(zip(LINEARISED_DIRECTIONS, linearised))
 
     def _data(self, m: Measurement) -> tuple:
         s0 = self.reduced.initial_state(m.start_rail_m, m.start_angle_rad)
@@ -136,16 +159,20 @@ class ThrowEstimator:
 
     def _linearise(self, theta: np.ndarray, data: tuple, index: list[int]) -> tuple[np.ndarray, np.ndarray]:
         """Residual and its Jacobian columns for the parameters at `index`."""
-        if len(index) == 1:
-            r, j = self._directional_fn(theta, *data, np.eye(len(FAULT_ORDER))[index[0]])
-        else:
-            r, j = self._jacobian_fn(theta, *data)
-            j = np.asarray(j)[:, index]
-        return np.asarray(r).ravel(), np.asarray(j).reshape(-1, len(index))
+        k = min(d for d in LINEARISED_DIRECTIONS if d >= len(index))
+        seeds = np.zeros((len(FAULT_ORDER), k))
+        seeds[index, range(len(index))] = 1.0
+        r, j = self._linearised_fn[k](theta, *data, seeds)
+        return np.asarray(r).ravel(), np.asarray(j)[:, :len(index)]
 
     def fit(self, mode: str, m: Measurement, data: tuple | None = None, start: dict[str, float] | None = None,
-            iterations: int = 20) -> Estimate:
-        """Fit one hypothesis from `start` (warm start or grid point; nominal elsewhere)."""
+            iterations: int = 20, rival: float = np.inf) -> Estimate:
+        """Fit one hypothesis from `start` (warm start or grid point; nominal elsewhere).
+
+        With `rival` (the lowest MSE another hypothesis reached), the fit stops early once it is above
+        the rival and, at its latest rate of decrease, would still be above it after its remaining
+        iterations: a hypothesis that cannot fit best is not refined further.
+        """
         data = data if data is not None else self._data(m)
         free = list(HYPOTHESES[mode])
         theta = fault_vector({**m.background, **{k: v for k, v in (start or {}).items() if k in free}})
@@ -185,6 +212,8 @@ class ThrowEstimator:
             cost, damping = float(r @ r), max(damping / 10, 1e-9)
             if decrease < TOLERANCE or np.max(np.abs(step)) < 1e-6:
                 break
+            if cost * (1.0 - decrease) ** (iterations - k) > rival:
+                break
         return _estimate(mode, {n: float(theta[i]) for n, i in zip(free, index)}, self._std(j, cost, free), r, k)
 
     def _std(self, jacobian: np.ndarray, cost: float, free: list[str]) -> dict[str, float]:
@@ -202,13 +231,24 @@ class ThrowEstimator:
 
     def grid_starts(self, m: Measurement, data: tuple) -> dict[str, dict[str, float]]:
         """The best point of each mode's coarse grid, by residual alone (all grids in one call)."""
-        thetas = np.column_stack([fault_vector({**m.background, **p}) for p in _GRID_POINTS])
-        costs = np.asarray(self._grid_fn(thetas, *data)).ravel()
+        grids = GRID_STARTS[m.direction]
+        points = [p for mode_points in grids.values() for p in mode_points]
+        costs = np.asarray(self._grid_fn(np.column_stack([fault_vector({**m.background, **p}) for p in points]),
+                                         *data)).ravel()
         costs = np.where(np.isfinite(costs), costs, np.inf)
-        best, first = {}, 0
-        for mode, points in GRID_STARTS.items():
-            best[mode] = points[int(np.argmin(costs[first:first + len(points)]))]
-            first += len(points)
+        best, lowest, first = {}, {}, 0
+        for mode, mode_points in grids.items():
+            k = int(np.argmin(costs[first:first + len(mode_points)]))
+            best[mode], lowest[mode] = mode_points[k], costs[first + k]
+            first += len(mode_points)
+        for mode, point in list(best.items()):  # halve the step around the best point
+            for name in set(point) & set(GRID_STEP):
+                for value in (point[name] - GRID_STEP[name] / 2, point[name] + GRID_STEP[name] / 2):
+                    if FAULT_PARAMETERS[name].low <= value <= FAULT_PARAMETERS[name].high:
+                        neighbour = {**point, name: value}
+                        cost = self._cost(fault_vector({**m.background, **neighbour}), data)
+                        if cost < lowest[mode]:
+                            best[mode], lowest[mode] = neighbour, cost
         return best
 
     def fit_all(self, m: Measurement) -> dict[str, Estimate]:
@@ -217,7 +257,8 @@ class ThrowEstimator:
         out = {"nominal": self.fit("nominal", m, data)}
         starts = self.grid_starts(m, data)
         for mode in MODE_PARAMETERS:
-            out[mode] = self.fit(mode, m, data, starts[mode])
+            rival = min(estimate.mse for estimate in out.values())
+            out[mode] = self.fit(mode, m, data, starts.get(mode), rival=rival)
         best = min(MODE_PARAMETERS, key=lambda mode: out[mode].mse)
         out["joint"] = self.fit("joint", m, data, out[best].params)
         return out

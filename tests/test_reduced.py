@@ -88,6 +88,31 @@ def test_outputs_have_finite_nonzero_derivatives_where_each_fault_acts(name):
         assert np.max(np.abs(left_to_right[both])) > 0 and np.max(np.abs(right_to_left[both])) > 0
 
 
+@pytest.mark.parametrize("name", MODELS)
+def test_sensitivity_rollout_gives_the_derivatives_of_the_rollout(name):
+    """The estimator's Jacobians (sensitivities carried through each step) equal CasADi's AD of the rollout."""
+    from models.reference import throw_reference
+
+    representation, weights, _ = shipped.load(name)
+    reduced = ReducedSwitch(representation, weights)
+    n, s0 = 120, reduced.initial_state(1.0, 0.0)
+    refs = reduced.reference_columns(throw_reference("left_to_right"), n)
+    theta = fault_vector({"left_bolt_offset": 0.03, "bearing_friction": 2000.0, "obstacle_friction": 5e4,
+                          "obstacle_position": 1.05})
+    symbol = ca.MX.sym("theta", len(FAULT_ORDER))
+    y, _ = reduced.rollout(n)(s0, refs, symbol, reduced.weights)
+    expected = np.asarray(ca.Function("j", [symbol], [ca.jacobian(ca.vec(y), symbol)])(theta))
+    seeds = np.eye(len(FAULT_ORDER))[:, [0, 2, 4]]  # three of the five parameters, in any order
+    y_sens, y_dot = reduced.sensitivity_rollout(n, seeds.shape[1])(s0, refs, theta, seeds, reduced.weights)
+    nominal, _ = reduced.rollout(n)(s0, refs, theta, reduced.weights)
+    np.testing.assert_allclose(np.asarray(y_sens), np.asarray(nominal), rtol=1e-12)
+    y_dot = np.asarray(y_dot)
+    for j, parameter in enumerate([0, 2, 4]):
+        block = y_dot[j * len(OUTPUTS):(j + 1) * len(OUTPUTS), :]
+        column = expected[:, parameter]
+        np.testing.assert_allclose(block.ravel(order="F"), column, rtol=1e-8, atol=1e-9 * np.max(np.abs(column)))
+
+
 def test_poly_training_on_a_small_data_set_converges_and_is_deterministic():
     plant = Plant()
     representation = REPRESENTATIONS["poly"]
