@@ -51,10 +51,12 @@ class ReducedParams:
     latch_rate_1_s: float = 50.0
     contact_width_m: float = 2e-4
     voltage_corner_v: float = 1.0
-    # The bearing fault's port: drive-point damping = gain * bearing_friction + offset (N·s/m). The plant
-    # spreads bearing friction along flexible rails; calibrated per representation (models/params/*.json).
-    bearing_gain: float = 1.0
-    bearing_offset_s_m: float = 0.0
+    # The bearing fault's port: drive-point damping = gain * bearing_friction + offset (N·s/m), one
+    # (gain, offset) while the blades move left to right and one while they move right to left, blended
+    # by the sign of their velocity over `port_velocity_m_s`. The plant spreads bearing friction along
+    # flexible rails; calibrated per representation (models/params/*.json).
+    bearing_port: tuple[tuple[float, float], tuple[float, float]] = ((1.0, 0.0), (1.0, 0.0))
+    port_velocity_m_s: float = 0.002
 
 
 def stock_rail_force(params: ReducedParams, x, v):
@@ -153,7 +155,7 @@ class ReducedSwitch:
         lock = lock_terms(self._lock, p.drive, self._adjuster, p.rail.left_stock_m, p.rail.right_stock_m, x, rod_m, hooks,
                           faults["left_bolt_offset"], faults["right_bolt_offset"], self.params.contact_width_m)
         external = (drive_force + lock.force_n + stock_rail_force(self.params, x, v)
-                    - (self.params.bearing_gain * faults["bearing_friction"] + self.params.bearing_offset_s_m) * v
+                    - self._bearing_damping(faults["bearing_friction"], v) * v
                     - faults["obstacle_friction"] * obstacle_profile(p.obstacle, x, faults["obstacle_position"]) * v)
         if frozen_rail is None:
             acceleration = self.representation.acceleration(x, v, external, w)
@@ -170,6 +172,13 @@ class ReducedSwitch:
         d_current, d_omega = motor_derivatives(p.motor, voltage, current, omega, rod_force * lever_m)
         derivative = ca.vertcat(omega, d_omega, d_integral, d_current, v, acceleration, lock.d_hooks)
         return derivative, ca.vertcat(current, angle, omega, x, v, drive_force + lock.force_n)
+
+    def _bearing_damping(self, bearing_friction, v):
+        """Drive-point damping of the bearing fault through the port of the blades' direction of motion."""
+        (gain_right, offset_right), (gain_left, offset_left) = self.params.bearing_port
+        rightwards = 0.5 * (1.0 + ca.tanh(v / self.params.port_velocity_m_s))
+        return (rightwards * (gain_right * bearing_friction + offset_right)
+                + (1.0 - rightwards) * (gain_left * bearing_friction + offset_left))
 
     def _build_step(self) -> ca.Function:
         """One sample: `substeps` ROS2 steps with the reference linear over the sample."""

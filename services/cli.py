@@ -122,7 +122,9 @@ def cmd_calibrate(args) -> int:
     try:
         for name in names:
             path, port = calibrate_and_save(name)
-            print(f"{name}: bearing port gain {port['gain']:.4f}, offset {port['offset_s_m']:.1f} N·s/m -> {path}")
+            ports = ", ".join(f"{d.replace('_', ' ')}: gain {port[d]['gain']:.4f}, offset {port[d]['offset_s_m']:.1f} N·s/m"
+                              for d in ("left_to_right", "right_to_left"))
+            print(f"{name}: bearing port {ports} -> {path}")
     except OSError as error:
         return _fail(f"cannot write the calibration: {error}")
     return 0

@@ -19,7 +19,7 @@ from models.estimation import ThrowEstimator
 from models.params import bearing_port, load
 from models.plant import Plant
 from models.reduced import ReducedParams, ReducedSwitch
-from models.reference import Reference
+from models.reference import DIRECTIONS, Reference
 from models.switch import SwitchSimulation
 from schemas import Diagnosis, Hypothesis, Message
 from services.switch_messages import switch_messages
@@ -45,7 +45,7 @@ class Diagnoser:
     model: str = "poly"
     compiled: bool = True
     switches: dict[str, SwitchDiagnoser] = field(default_factory=dict)
-    port: dict[str, float] | None = None  # the bearing port; None: the shipped calibration
+    port: dict[str, dict[str, float]] | None = None  # the bearing port per direction; None: the shipped one
 
     def __post_init__(self) -> None:
         if self.model not in MODELS:
@@ -60,8 +60,8 @@ class Diagnoser:
         """
         representation, weights, _ = load(self.model)
         port = self.port or bearing_port(self.model)
-        params = ReducedParams(substeps=DIAGNOSIS_SUBSTEPS, bearing_gain=port["gain"],
-                               bearing_offset_s_m=port["offset_s_m"])
+        params = ReducedParams(substeps=DIAGNOSIS_SUBSTEPS,
+                               bearing_port=tuple((port[d]["gain"], port[d]["offset_s_m"]) for d in DIRECTIONS))
         reduced = ReducedSwitch(representation, weights, params, rate_hz=rate_hz)
         try:
             cache_dir = Path(os.environ.get("RAILSWITCH_CACHE")

@@ -15,6 +15,7 @@ import models.params as shipped
 from models.plant import Plant
 from models.rail_models import REPRESENTATIONS
 from models.reduced import STATES
+from models.reference import DIRECTIONS
 from models.training import TRAIN_SEEDS, train
 
 
@@ -49,24 +50,26 @@ CALIBRATION_BEARINGS = (2000.0, 3500.0, 8000.0)  # N·s/m; the paper's 5000 stay
 
 
 def calibrate_bearing_port(name: str, plant: Plant | None = None) -> dict:
-    """Fit the bearing port of a shipped model: plant throws with known bearing friction, estimated
-    through the neutral port, give estimate = gain * friction + offset by least squares; the diagnosis
-    then uses that port, so its estimates come back in the plant's terms."""
+    """Fit the bearing port of a shipped model, per direction of motion: plant throws with known bearing
+    friction, estimated through the neutral port, give estimate = gain * friction + offset by least
+    squares; the diagnosis then uses that port, so its estimates come back in the plant's terms."""
     from models.switch import SwitchSimulation
     from services.diagnosis import Diagnoser, diagnose_simulation
 
     plant = plant or Plant()
-    diagnoser = Diagnoser(name, port=dict(shipped.NEUTRAL_PORT))
-    estimates = []
+    diagnoser = Diagnoser(name, port=shipped.NEUTRAL_PORT)
+    estimates: dict[str, list[float]] = {direction: [] for direction in DIRECTIONS}
     for value in CALIBRATION_BEARINGS:
         sim = SwitchSimulation(plant, faults={"bearing_friction": value})
-        fits = [item.verdict.estimates["missing_bearing"].params["bearing_friction"]
-                for item in diagnose_simulation(diagnoser, f"calibration{int(value)}", sim, 2)
-                if item.verdict is not None]
-        estimates.append(float(np.mean(fits)))
-    gain, offset = np.polyfit(CALIBRATION_BEARINGS, estimates, 1)
-    return {"gain": round(float(gain), 5), "offset_s_m": round(float(offset), 2),
-            "calibrated_on_n_s_m": list(CALIBRATION_BEARINGS), "estimates_through_neutral_port": estimates}
+        for item in diagnose_simulation(diagnoser, f"calibration{int(value)}", sim, len(DIRECTIONS)):
+            if item.verdict is None:
+                raise RuntimeError(f"calibration throw at {value:g} N·s/m was not diagnosed: {item.diagnosis.reason}")
+            estimates[item.verdict.direction].append(item.verdict.estimates["missing_bearing"].params["bearing_friction"])
+    port: dict = {}
+    for direction, values in estimates.items():
+        gain, offset = np.polyfit(CALIBRATION_BEARINGS, values, 1)
+        port[direction] = {"gain": round(float(gain), 5), "offset_s_m": round(float(offset), 2)}
+    return {**port, "calibrated_on_n_s_m": list(CALIBRATION_BEARINGS), "estimates_through_neutral_port": estimates}
 
 
 def calibrate_and_save(name: str) -> tuple[Path, dict]:

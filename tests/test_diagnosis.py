@@ -174,6 +174,7 @@ def test_shipped_bearing_port_is_what_calibration_on_the_plant_gives(plant):
 
     fresh = calibrate_bearing_port("poly", plant)
     shipped = bearing_port("poly")
-    assert fresh["gain"] == pytest.approx(shipped["gain"], rel=1e-3)
-    assert fresh["offset_s_m"] == pytest.approx(shipped["offset_s_m"], abs=5.0)
-    assert 0.9 < shipped["gain"] < 1.0  # distributed friction acts at the drive point a little weaker
+    for direction in ("left_to_right", "right_to_left"):
+        assert fresh[direction]["gain"] == pytest.approx(shipped[direction]["gain"], rel=1e-3)
+        assert fresh[direction]["offset_s_m"] == pytest.approx(shipped[direction]["offset_s_m"], abs=5.0)
+        assert 0.9 < shipped[direction]["gain"] < 1.0  # distributed friction acts at the drive point a little weaker

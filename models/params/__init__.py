@@ -7,6 +7,7 @@ from importlib import resources
 import numpy as np
 
 from models.rail_models import REPRESENTATIONS, Representation
+from models.reference import DIRECTIONS
 
 
 def weights_document(representation: Representation, weights: np.ndarray, training: dict) -> dict:
@@ -16,7 +17,7 @@ def weights_document(representation: Representation, weights: np.ndarray, traini
             "weights": {k: np.asarray(v).tolist() for k, v in named.items()}, "training": training}
 
 
-NEUTRAL_PORT = {"gain": 1.0, "offset_s_m": 0.0}
+NEUTRAL_PORT = {direction: {"gain": 1.0, "offset_s_m": 0.0} for direction in DIRECTIONS}
 
 
 def _document(name: str) -> dict:
@@ -25,10 +26,12 @@ def _document(name: str) -> dict:
     return json.loads(resources.files(__name__).joinpath(f"{name}.json").read_text())
 
 
-def bearing_port(name: str) -> dict[str, float]:
-    """The calibrated bearing-fault port of a shipped model (neutral when never calibrated)."""
+def bearing_port(name: str) -> dict[str, dict[str, float]]:
+    """The calibrated bearing-fault port of a shipped model, per direction of motion (neutral when
+    never calibrated; a port stored as one gain and offset serves both directions)."""
     port = _document(name).get("bearing_port", NEUTRAL_PORT)
-    return {"gain": float(port["gain"]), "offset_s_m": float(port["offset_s_m"])}
+    return {d: {"gain": float(port.get(d, port)["gain"]), "offset_s_m": float(port.get(d, port)["offset_s_m"])}
+            for d in DIRECTIONS}
 
 
 def load(name: str) -> tuple[Representation, np.ndarray, dict]:
