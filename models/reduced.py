@@ -48,7 +48,9 @@ class ReducedParams:
     contact_damping_s_m: float = 1.0  # Hunt-Crossley lambda of every reduced-model contact
     bolt_stiffness_n_m: float = 2.5e5  # along the rod (1e6 N/m at the blades through the lever)
     lock_stiffness_n_m: float = 1.0e6
-    latch_rate_1_s: float = 50.0
+    # The hook's release rate: None keeps the plant's. It sets how soon the blades follow the driving
+    # bolt, so a slower one reads as a bolt offset (50/s put 0.05 m bolts 1.7 mm long).
+    latch_rate_1_s: float | None = None
     contact_width_m: float = 2e-4
     voltage_corner_v: float = 1.0
     # The bearing fault's port: drive-point damping = gain * bearing_friction + offset (N·s/m), one
@@ -133,7 +135,7 @@ class ReducedSwitch:
         self._adjuster = replace(params.plant.adjuster, contact_stiffness_n_m=params.bolt_stiffness_n_m,
                                  contact_damping_s_m=params.contact_damping_s_m)
         self._lock = replace(params.plant.lock, stiffness_n_m=params.lock_stiffness_n_m,
-                             latch_rate_1_s=params.latch_rate_1_s)
+                             latch_rate_1_s=params.latch_rate_1_s or params.plant.lock.latch_rate_1_s)
         self.step = self._build_step()
         self.compiled = compiled  # rollouts compiled to machine code when a C compiler is there
 
