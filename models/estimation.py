@@ -26,7 +26,7 @@ import casadi as ca
 import numpy as np
 
 from models.faults import FAULT_ORDER, fault_vector
-from models.reduced import OUTPUTS, ReducedSwitch, jit_compiled
+from models.reduced import OUTPUTS, ReducedSwitch, jit_compiled_all
 from models.reference import Reference
 from schemas.faults import FAULT_PARAMETERS, MODE_PARAMETERS
 
@@ -139,8 +139,7 @@ class ThrowEstimator:
         functions.append(cost.map(_GRID_SIZE))  # every grid start in one call
         self.compiled = False
         if compiled:
-            functions, flags = zip(*(jit_compiled(f, cache_dir) for f in functions))
-            self.compiled = all(flags)
+            functions, self.compiled = jit_compiled_all(functions, cache_dir)
         self._residual_fn, *linearised, self._grid_fn = functions
         self._linearised_fn = dict(zip(LINEARISED_DIRECTIONS, linearised))
 

@@ -14,6 +14,7 @@ import platform
 import shutil
 import subprocess
 import tempfile
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
@@ -80,11 +81,24 @@ def jit_compiled(function: ca.Function, cache_dir: Path | None = None) -> tuple[
     With `cache_dir`, the machine code is kept there and later calls, in any process, load it instead
     of compiling again; without one, or when the cache fails, CasADi's JIT compiles it for this process.
     """
+    (compiled,), ok = jit_compiled_all([function], cache_dir)
+    return compiled, ok
+
+
+def jit_compiled_all(functions: list[ca.Function], cache_dir: Path | None = None) -> tuple[list[ca.Function], bool]:
+    """`jit_compiled` for several Functions, the cache's missing libraries compiled in parallel
+    (one C compiler per core); True when every one is machine code."""
     if cache_dir is not None:
         try:
-            return cached_external(function, Path(cache_dir)), True
+            return cached_externals(functions, Path(cache_dir)), True
         except (OSError, RuntimeError, subprocess.SubprocessError):
             pass  # no compiler, or the cache is not writable: compiled for this process only
+    compiled = [_process_jit(function) for function in functions]
+    return [f for f, _ in compiled], all(ok for _, ok in compiled)
+
+
+def _process_jit(function: ca.Function) -> tuple[ca.Function, bool]:
+    """CasADi's own JIT, for this process only; the Function itself when that fails."""
     try:
         symbols = function.mx_in()
         scratch = tempfile.gettempdir()  # CasADi's intermediate files stay out of the user's directory
@@ -99,28 +113,39 @@ def jit_compiled(function: ca.Function, cache_dir: Path | None = None) -> tuple[
         return function, False
 
 
-def cached_external(function: ca.Function, cache_dir: Path) -> ca.Function:
-    """`function` from `<cache_dir>/<key>.so`, compiled from its generated C code first if not there yet.
+def cached_externals(functions: list[ca.Function], cache_dir: Path) -> list[ca.Function]:
+    """Each function from `<cache_dir>/<key>.so`, compiled from its generated C code first if not there yet.
 
     The key hashes the C source, CasADi's version, the machine and CACHE_FLAGS, so a changed model,
     CasADi or flag set gets its own library. A library is compiled under a temporary name and renamed
-    into place (atomic), so processes compiling the same one at once never load a partial file.
+    into place (atomic), so processes compiling the same one at once never load a partial file. The C
+    code is generated here, one function after the other; only the compilers run in parallel.
     """
-    generator = ca.CodeGenerator("railswitch_cache.c", {"with_header": False})
-    generator.add(function)
-    source = generator.dump()
-    key = hashlib.sha256("\n".join([ca.__version__, platform.machine(), *CACHE_FLAGS, source]).encode()).hexdigest()
-    library = cache_dir / f"{key[:32]}.so"
-    if not library.exists():
+    libraries, missing = [], {}
+    for function in functions:
+        generator = ca.CodeGenerator("railswitch_cache.c", {"with_header": False})
+        generator.add(function)
+        source = generator.dump()
+        key = hashlib.sha256("\n".join([ca.__version__, platform.machine(), *CACHE_FLAGS, source]).encode()).hexdigest()
+        libraries.append(cache_dir / f"{key[:32]}.so")
+        if not libraries[-1].exists():
+            missing[libraries[-1]] = source
+    if missing:
         compiler = shutil.which("gcc") or shutil.which("cc")
         if compiler is None:
             raise FileNotFoundError("no C compiler (gcc or cc) on PATH")
-        with tempfile.TemporaryDirectory(dir=cache_dir) as scratch:  # same file system: the rename is atomic
-            c_file, partial = Path(scratch) / "railswitch_cache.c", Path(scratch) / "library.so"
-            c_file.write_text(source)
-            subprocess.run([compiler, *CACHE_FLAGS, str(c_file), "-o", str(partial)], check=True, capture_output=True)
-            os.replace(partial, library)
-    return ca.external(function.name(), str(library))
+        with ThreadPoolExecutor(max_workers=min(len(missing), os.cpu_count() or 1)) as pool:
+            for done in [pool.submit(_compile, compiler, source, library) for library, source in missing.items()]:
+                done.result()  # raises the first failure
+    return [ca.external(function.name(), str(library)) for function, library in zip(functions, libraries)]
+
+
+def _compile(compiler: str, source: str, library: Path) -> None:
+    with tempfile.TemporaryDirectory(dir=library.parent) as scratch:  # same file system: the rename is atomic
+        c_file, partial = Path(scratch) / "railswitch_cache.c", Path(scratch) / "library.so"
+        c_file.write_text(source)
+        subprocess.run([compiler, *CACHE_FLAGS, str(c_file), "-o", str(partial)], check=True, capture_output=True)
+        os.replace(partial, library)
 
 
 class ReducedSwitch:
