@@ -55,7 +55,9 @@ GRID_STARTS: dict[str, dict[str, list[dict[str, float]]]] = {
         "obstacle": _OBSTACLE_GRID,
     } for direction, bolt in DRIVING_BOLT.items()
 }
-_GRID_SIZE = {len([p for points in grids.values() for p in points]) for grids in GRID_STARTS.values()}.pop()
+_GRID_SIZES = {sum(len(points) for points in grids.values()) for grids in GRID_STARTS.values()}
+assert len(_GRID_SIZES) == 1, "one mapped grid Function serves both directions"
+_GRID_SIZE = _GRID_SIZES.pop()
 
 
 @dataclass(frozen=True)
@@ -120,21 +122,25 @@ class ThrowEstimator:
         inverse_scale = ca.MX.sym("inverse_scale", 1, len(MEASURED))
         inputs = [theta, s0, refs, measured, inverse_scale]
 
-        def scaled(outputs):
-            """The measured signals' rows of a 6xN output block, scaled, stacked signal by signal and
-            divided by sqrt(3N), so that r'r is the mean squared error of the scaled signals."""
-            fitted = ca.horzcat(*[outputs[OUTPUTS.index(name), :].T for name in MEASURED])
-            return ca.vec(fitted * ca.repmat(inverse_scale, samples, 1)) / np.sqrt(samples * len(MEASURED))
+        def scaled(signals):
+            """N x 3 signals scaled, stacked signal by signal and divided by sqrt(3N), so that r'r is
+            the mean squared error of the scaled signals."""
+            return ca.vec(signals * ca.repmat(inverse_scale, samples, 1)) / np.sqrt(samples * len(MEASURED))
+
+        def measured_rows(outputs):
+            """The measured signals of a 6 x N block of outputs (or of their derivatives), N x 3."""
+            return ca.horzcat(*[outputs[OUTPUTS.index(name), :].T for name in MEASURED])
 
         y, _ = reduced._rollout(samples)(s0, refs, theta, reduced.weights)
-        residual = scaled(y) - scaled(measured.T)
+        residual = scaled(measured_rows(y) - measured)
         functions = [ca.Function("throw_residual", inputs, [residual])]
         for k in LINEARISED_DIRECTIONS:  # residual and its derivative along k fault directions
             seeds = ca.MX.sym("seeds", len(FAULT_ORDER), k)
             y, y_dot = reduced.sensitivity_rollout(samples, k)(s0, refs, theta, seeds, reduced.weights)
-            jacobian = ca.horzcat(*[scaled(y_dot[j * len(OUTPUTS):(j + 1) * len(OUTPUTS), :]) for j in range(k)])
+            blocks = [y_dot[j * len(OUTPUTS):(j + 1) * len(OUTPUTS), :] for j in range(k)]
+            jacobian = ca.horzcat(*[scaled(measured_rows(block)) for block in blocks])
             functions.append(ca.Function(f"throw_linearised{k}", [*inputs, seeds],
-                                         [scaled(y) - scaled(measured.T), jacobian]))
+                                         [scaled(measured_rows(y) - measured), jacobian]))
         cost = ca.Function("throw_cost", inputs, [ca.sumsqr(residual)])
         functions.append(cost.map(_GRID_SIZE))  # every grid start in one call
         self.compiled = False
