@@ -60,6 +60,30 @@ assert len(_GRID_SIZES) == 1, "one mapped grid Function serves both directions"
 _GRID_SIZE = _GRID_SIZES.pop()
 
 
+class InPlace:
+    """A CasADi Function evaluated on its own numpy buffers: no DM is made per call.
+
+    Arguments are copied into the input buffers (column-major, as CasADi stores them); the outputs
+    come back as new arrays shaped like the Function's outputs.
+    """
+
+    def __init__(self, function: ca.Function):
+        self._buffer, self._trigger = function.buffer()
+        self._inputs = [np.zeros(function.nnz_in(i)) for i in range(function.n_in())]
+        self._outputs = [np.zeros(function.nnz_out(i)) for i in range(function.n_out())]
+        self._shapes = [function.size_out(i) for i in range(function.n_out())]
+        for i, slot in enumerate(self._inputs):
+            self._buffer.set_arg(i, memoryview(slot))
+        for i, slot in enumerate(self._outputs):
+            self._buffer.set_res(i, memoryview(slot))
+
+    def __call__(self, *args) -> list[np.ndarray]:
+        for slot, value in zip(self._inputs, args, strict=True):
+            slot[:] = np.asarray(value, dtype=float).ravel(order="F")
+        self._trigger()
+        return [out.reshape(shape, order="F").copy() for out, shape in zip(self._outputs, self._shapes)]
+
+
 @dataclass(frozen=True)
 class Measurement:
     """One throw's N samples after its start, its reference and the state it starts from."""
@@ -142,20 +166,23 @@ class ThrowEstimator:
             functions.append(ca.Function(f"throw_linearised{k}", [*inputs, seeds],
                                          [scaled(measured_rows(y) - measured), jacobian]))
         cost = ca.Function("throw_cost", inputs, [ca.sumsqr(residual)])
-        functions.append(cost.map(_GRID_SIZE))  # every grid start in one call
+        # Every grid start in one call; only theta is mapped, the throw's data is shared.
+        functions.append(cost.map("throw_grid", "serial", _GRID_SIZE, list(range(1, len(inputs))), []))
         self.compiled = False
         if compiled:
             functions, self.compiled = jit_compiled_all(functions, cache_dir)
         self._residual_fn, *linearised, self._grid_fn = functions
         self._linearised_fn = dict(zip(LINEARISED_DIRECTIONS, linearised))
+        self._residual_in_place = InPlace(self._residual_fn)
+        self._linearised_in_place = {k: InPlace(f) for k, f in self._linearised_fn.items()}
+        self._grid_in_place = InPlace(self._grid_fn)
 
     def _data(self, m: Measurement) -> tuple:
         s0 = self.reduced.initial_state(m.start_rail_m, m.start_angle_rad)
-        data = (s0, self.reduced.reference_columns(m.reference, self.samples), m.matrix(), 1.0 / m.scales()[None, :])
-        return tuple(ca.DM(d) for d in data)  # converted once, not at every call
+        return s0, self.reduced.reference_columns(m.reference, self.samples), m.matrix(), 1.0 / m.scales()[None, :]
 
     def _residuals(self, theta: np.ndarray, data: tuple) -> np.ndarray:
-        return np.asarray(self._residual_fn(theta, *data)).ravel()
+        return self._residual_in_place(theta, *data)[0].ravel()
 
     def _cost(self, theta: np.ndarray, data: tuple) -> float:
         r = self._residuals(theta, data)
@@ -167,8 +194,8 @@ class ThrowEstimator:
         k = min(d for d in LINEARISED_DIRECTIONS if d >= len(index))
         seeds = np.zeros((len(FAULT_ORDER), k))
         seeds[index, range(len(index))] = 1.0
-        r, j = self._linearised_fn[k](theta, *data, seeds)
-        return np.asarray(r).ravel(), np.asarray(j)[:, :len(index)]
+        r, j = self._linearised_in_place[k](theta, *data, seeds)
+        return r.ravel(), j[:, :len(index)]
 
     def fit(self, mode: str, m: Measurement, data: tuple | None = None, start: dict[str, float] | None = None,
             iterations: int = 20, rival: float = np.inf) -> Estimate:
@@ -199,11 +226,15 @@ class ThrowEstimator:
                 break
             h = js[:, move].T @ js[:, move]
             accepted = False
-            for _ in range(12):
+            for attempt in range(12):
                 step = np.zeros(len(free))
                 step[move] = np.linalg.solve(h + damping * np.diag(np.diag(h) + 1e-12), -g[move])
                 trial = theta.copy()
                 trial[index] = np.clip(theta[index] + step * scale, low, high)
+                if attempt:  # after a failed step: give up once the damped step promises no visible decrease
+                    taken = (trial[index] - theta[index]) / scale
+                    if -(2.0 * g @ taken + taken @ (js.T @ js) @ taken) < TOLERANCE * cost:
+                        break
                 trial_cost = self._cost(trial, data)
                 if trial_cost < cost:
                     accepted = True
@@ -238,8 +269,8 @@ class ThrowEstimator:
         """The best point of each mode's coarse grid, by residual alone (all grids in one call)."""
         grids = GRID_STARTS[m.direction]
         points = [p for mode_points in grids.values() for p in mode_points]
-        costs = np.asarray(self._grid_fn(np.column_stack([fault_vector({**m.background, **p}) for p in points]),
-                                         *data)).ravel()
+        thetas = np.column_stack([fault_vector({**m.background, **p}) for p in points])
+        costs = self._grid_in_place(thetas, *data)[0].ravel()
         costs = np.where(np.isfinite(costs), costs, np.inf)
         best, lowest, first = {}, {}, 0
         for mode, mode_points in grids.items():
