@@ -64,7 +64,8 @@ class InPlace:
     """A CasADi Function evaluated on its own numpy buffers: no DM is made per call.
 
     Arguments are copied into the input buffers (column-major, as CasADi stores them); the outputs
-    come back as new arrays shaped like the Function's outputs.
+    come back as new arrays shaped like the Function's outputs. One set of buffers per Function, so
+    calls must not overlap (the diagnoser diagnoses in one thread).
     """
 
     def __init__(self, function: ca.Function):
