@@ -69,6 +69,7 @@ class InPlace:
     """
 
     def __init__(self, function: ca.Function):
+        self.function = function
         self._buffer, self._trigger = function.buffer()
         self._inputs = [np.zeros(function.nnz_in(i)) for i in range(function.n_in())]
         self._outputs = [np.zeros(function.nnz_out(i)) for i in range(function.n_out())]
@@ -172,18 +173,15 @@ class ThrowEstimator:
         self.compiled = False
         if compiled:
             functions, self.compiled = jit_compiled_all(functions, cache_dir)
-        self._residual_fn, *linearised, self._grid_fn = functions
-        self._linearised_fn = dict(zip(LINEARISED_DIRECTIONS, linearised))
-        self._residual_in_place = InPlace(self._residual_fn)
-        self._linearised_in_place = {k: InPlace(f) for k, f in self._linearised_fn.items()}
-        self._grid_in_place = InPlace(self._grid_fn)
+        self._residual, *linearised, self._grid = [InPlace(f) for f in functions]
+        self._linearised = dict(zip(LINEARISED_DIRECTIONS, linearised))
 
     def _data(self, m: Measurement) -> tuple:
         s0 = self.reduced.initial_state(m.start_rail_m, m.start_angle_rad)
         return s0, self.reduced.reference_columns(m.reference, self.samples), m.matrix(), 1.0 / m.scales()[None, :]
 
     def _residuals(self, theta: np.ndarray, data: tuple) -> np.ndarray:
-        return self._residual_in_place(theta, *data)[0].ravel()
+        return self._residual(theta, *data)[0].ravel()
 
     def _cost(self, theta: np.ndarray, data: tuple) -> float:
         r = self._residuals(theta, data)
@@ -195,7 +193,7 @@ class ThrowEstimator:
         k = min(d for d in LINEARISED_DIRECTIONS if d >= len(index))
         seeds = np.zeros((len(FAULT_ORDER), k))
         seeds[index, range(len(index))] = 1.0
-        r, j = self._linearised_in_place[k](theta, *data, seeds)
+        r, j = self._linearised[k](theta, *data, seeds)
         return r.ravel(), j[:, :len(index)]
 
     def fit(self, mode: str, m: Measurement, data: tuple | None = None, start: dict[str, float] | None = None,
@@ -233,8 +231,8 @@ class ThrowEstimator:
                 trial = theta.copy()
                 trial[index] = np.clip(theta[index] + step * scale, low, high)
                 if attempt:  # after a failed step: give up once the damped step promises no visible decrease
-                    taken = (trial[index] - theta[index]) / scale
-                    if -(2.0 * g @ taken + taken @ (js.T @ js) @ taken) < TOLERANCE * cost:
+                    taken = ((trial[index] - theta[index]) / scale)[move]  # parameters held at a bound do not move
+                    if -(2.0 * g[move] @ taken + taken @ h @ taken) < TOLERANCE * cost:
                         break
                 trial_cost = self._cost(trial, data)
                 if trial_cost < cost:
@@ -271,7 +269,7 @@ class ThrowEstimator:
         grids = GRID_STARTS[m.direction]
         points = [p for mode_points in grids.values() for p in mode_points]
         thetas = np.column_stack([fault_vector({**m.background, **p}) for p in points])
-        costs = self._grid_in_place(thetas, *data)[0].ravel()
+        costs = self._grid(thetas, *data)[0].ravel()
         costs = np.where(np.isfinite(costs), costs, np.inf)
         best, lowest, first = {}, {}, 0
         for mode, mode_points in grids.items():

@@ -62,15 +62,15 @@ def test_estimator_built_from_the_cache_gives_the_uncompiled_residual_and_deriva
     def evaluations(estimator: ThrowEstimator) -> list:
         """Every compiled Function once: residual, linearisations along 1, 2 and 5 parameters, grid costs."""
         data = estimator._data(m)
-        grid = np.tile(theta[:, None], estimator._grid_fn.size2_in(0))
+        grid = np.tile(theta[:, None], estimator._grid.function.size2_in(0))
         out = [estimator._residuals(theta, data), *estimator._linearise(theta, data, [0]),
                *estimator._linearise(theta, data, [0, 2]), *estimator._linearise(theta, data, [0, 1, 2, 3, 4]),
-               estimator._grid_fn(grid, *data)]
+               estimator._grid(grid, *data)[0]]
         return [np.asarray(value) for value in out]
 
     expected = evaluations(uncompiled)
     for build in ("compiles", "loads"):
         cached = ThrowEstimator(reduced, samples, cache_dir=tmp_path)
-        assert cached._residual_fn.class_name() == "External" and len(list(tmp_path.glob("*.so"))) == 5, build
+        assert cached._residual.function.class_name() == "External" and len(list(tmp_path.glob("*.so"))) == 5, build
         for got, value in zip(evaluations(cached), expected):
             np.testing.assert_allclose(got, value, rtol=1e-10, atol=1e-12 * np.max(np.abs(value)))
