@@ -15,15 +15,17 @@ import signal
 import socket
 import threading
 import time
-from collections import Counter
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import zenoh
 
 from schemas import Message, ServiceStatus, encode
+
+if TYPE_CHECKING:  # the intake module imports this one
+    from services.intake import Intake
 
 log = logging.getLogger("railswitch.bus")
 
@@ -203,24 +205,27 @@ class Inbox:
 
 
 class StatusReporter:
-    """Publishes a ServiceStatus on railswitch/service/<name>/<instance>/status every interval_s."""
+    """Publishes a ServiceStatus on railswitch/service/<name>/<instance>/status every interval_s,
+    with what the service's intake (services/intake.py) received and rejected."""
 
-    def __init__(self, publishers: Publishers, service: str, interval_s: float = 5.0):
+    def __init__(self, publishers: Publishers, service: str, intake: Intake, interval_s: float = 5.0):
         self.publishers = publishers
         self.service = service
+        self.intake = intake
         self.instance = instance_name()
         self.key = f"{SERVICE_PREFIX}/{service}/{self.instance}/status"
         self.interval_s = interval_s
         self._started = time.monotonic()
         self._next = self._started
 
-    def maybe_publish(self, received: int, rejected: Counter[str], counters: dict[str, int], force: bool = False) -> None:
+    def maybe_publish(self, counters: dict[str, int], force: bool = False) -> None:
         now = time.monotonic()
         if not force and now < self._next:
             return
         self._next = now + self.interval_s
         status = ServiceStatus(service=self.service, instance=self.instance, t_ns=time.time_ns(),
-                               uptime_s=now - self._started, received=received, rejected=dict(rejected),
+                               uptime_s=now - self._started, received=self.intake.received,
+                               rejected=dict(self.intake.rejected),
                                counters=counters)
         self.publishers.put(self.key, status)
 

@@ -116,6 +116,7 @@ def cmd_train(args) -> int:
 
 
 def cmd_calibrate(args) -> int:
+    from models.reference import DIRECTIONS
     from services.reduced_models import calibrate_and_save
 
     names = _models(args.model)
@@ -123,7 +124,7 @@ def cmd_calibrate(args) -> int:
         for name in names:
             path, port = calibrate_and_save(name)
             ports = ", ".join(f"{d.replace('_', ' ')}: gain {port[d]['gain']:.4f}, offset {port[d]['offset_s_m']:.1f} N·s/m"
-                              for d in ("left_to_right", "right_to_left"))
+                              for d in DIRECTIONS)
             print(f"{name}: bearing port {ports} -> {path}")
     except OSError as error:
         return _fail(f"cannot write the calibration: {error}")

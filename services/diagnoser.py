@@ -91,12 +91,12 @@ def run_diagnoser(options: BusOptions, *, model: str, shard: tuple[int, int], st
         log.info("model %s ready in %.1f s; shard %d/%d", model, time.monotonic() - started, *shard)
         live = LiveDiagnoser(diagnoser, publishers, shard)
         token = declare_service(session, "diagnoser")  # declared once ready: waiters know throws will be served
-        status = StatusReporter(publishers, "diagnoser", status_s)
+        status = StatusReporter(publishers, "diagnoser", live.intake, status_s)
         for item in inbox.drain(stop):
             if item is not None:
                 live.handle(item)
-            status.maybe_publish(live.intake.received, live.intake.rejected, live.counters())
-        status.maybe_publish(live.intake.received, live.intake.rejected, live.counters(), force=True)
+            status.maybe_publish(live.counters())
+        status.maybe_publish(live.counters(), force=True)
         token.undeclare()
         log.info("published %d diagnoses; rejected %s", live.diagnosed, dict(live.intake.rejected) or "nothing")
         return live.diagnosed

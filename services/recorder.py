@@ -81,7 +81,7 @@ def run_recorder(options: BusOptions, out: str, *, stop: threading.Event, status
             inbox = Inbox(session, ["railswitch/**"])
             token = declare_service(session, "recorder")
             recorder = Recorder(writer)
-            status = StatusReporter(Publishers(session), "recorder", status_s)
+            status = StatusReporter(Publishers(session), "recorder", recorder.intake, status_s)
             log.info("recording railswitch/** to %s", writer.path)
             flushed = time.monotonic()
             for item in inbox.drain(stop):
@@ -90,10 +90,8 @@ def run_recorder(options: BusOptions, out: str, *, stop: threading.Event, status
                 if time.monotonic() - flushed > FLUSH_S:
                     writer.flush()
                     flushed = time.monotonic()
-                status.maybe_publish(recorder.intake.received, recorder.intake.rejected,
-                                     {"written": writer.message_count})
-            status.maybe_publish(recorder.intake.received, recorder.intake.rejected,
-                                 {"written": writer.message_count}, force=True)
+                status.maybe_publish({"written": writer.message_count})
+            status.maybe_publish({"written": writer.message_count}, force=True)
             token.undeclare()
         finally:
             session.close()

@@ -122,7 +122,7 @@ def run_simulator(options: BusOptions, scenario: Scenario, *, speed: float, stop
         publishers = Publishers(session)
         inbox = Inbox(session, ["railswitch/*/inject"])
         intake = Intake(log, kinds=("inject",))
-        status = StatusReporter(publishers, "simulator", status_s)
+        status = StatusReporter(publishers, "simulator", intake, status_s)
         token = declare_service(session, "simulator")
         plant = Plant() if library is None else None
         start_ns = time.time_ns()
@@ -145,7 +145,7 @@ def run_simulator(options: BusOptions, scenario: Scenario, *, speed: float, stop
                 for key, message in stream.due(t_ns):
                     publishers.put(key, message)
             _apply_commands(inbox, intake, streams)
-            status.maybe_publish(intake.received, intake.rejected, {"published": publishers.published})
+            status.maybe_publish({"published": publishers.published})
             tick += 1
             delay = wall0 + tick / (scenario.rate_hz * speed) - time.monotonic()
             if delay > 0:

@@ -30,8 +30,7 @@ def bearing_port(name: str) -> dict[str, dict[str, float]]:
     """The calibrated bearing-fault port of a shipped model, per direction of motion (neutral when
     never calibrated; a port stored as one gain and offset serves both directions)."""
     port = _document(name).get("bearing_port", NEUTRAL_PORT)
-    return {d: {"gain": float(port.get(d, port)["gain"]), "offset_s_m": float(port.get(d, port)["offset_s_m"])}
-            for d in DIRECTIONS}
+    return {d: {key: float(port.get(d, port)[key]) for key in ("gain", "offset_s_m")} for d in DIRECTIONS}
 
 
 def load(name: str) -> tuple[Representation, np.ndarray, dict]:
