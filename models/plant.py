@@ -59,7 +59,7 @@ class Plant:
         self.index = {"current_a": 2 * self.nodes, "angle_rad": 2 * self.nodes + 1,
                       "velocity_rad_s": 2 * self.nodes + 2, "integral_v": 2 * self.nodes + 3,
                       "hook_left": 2 * self.nodes + 4, "hook_right": 2 * self.nodes + 5}
-        self._tolerances = {"reltol": reltol, "abstol": abstol}
+        self.tolerances = {"reltol": reltol, "abstol": abstol}
         self._build()
 
     # -- equations ---------------------------------------------------------------------------
@@ -113,7 +113,7 @@ class Plant:
     @lru_cache(maxsize=16)
     def _integrator(self, dt_s: float, steps: int) -> ca.Function:
         """CVODES over `steps` output intervals of `dt_s`; built once per grid, reused."""
-        opts = {**self._tolerances, "linear_solver": "csparse", "max_num_steps": 200_000,
+        opts = {**self.tolerances, "linear_solver": "csparse", "max_num_steps": 200_000,
                 "disable_internal_warnings": True}
         grid = [dt_s * (k + 1) for k in range(steps)]
         return ca.integrator("plant", "cvodes", self._dae, 0.0, grid, opts)
