@@ -1,9 +1,13 @@
-"""Reduced rail models against the plant: speed-up, training time and validation errors.
+"""Reduced rail models against the plant: speed-up, training time, validation errors, divergence.
 
 For each representation: trains it (timed, deterministic), times the plant and
 the reduced switch model over the same two throws (14 s) in the same run, and
 validates on 25 random-push series of 100 s never used in training (MSE of rail
-position, velocity and force per series, written as JSON and a box plot).
+position, velocity and force per series, written as JSON and a box plot; the
+worst series's position RMSE is printed beside the mean). `--stress N` also rolls
+each reduced switch over N stress pushes of 30 s and every fault at the ends of its
+range, at 10, 25, 50 and 100 samples/s, with one step per sample and with the
+diagnosis's substeps, and counts the rollouts that diverge.
 """
 from __future__ import annotations
 
@@ -24,7 +28,9 @@ from models.rail_models import REPRESENTATIONS  # noqa: E402
 from models.reduced import ReducedSwitch  # noqa: E402
 from models.reference import THROW_DURATION_S, throw_reference  # noqa: E402
 from models.switch import SwitchSimulation  # noqa: E402
-from models.training import RATE_HZ, VALIDATION_SEEDS, random_push_run, train  # noqa: E402
+from models.reduced import ReducedParams  # noqa: E402
+from models.training import RATE_HZ, VALIDATION_SEEDS, train  # noqa: E402
+from models.validation import divergence, plant_series, validate  # noqa: E402
 import models.params as shipped  # noqa: E402
 
 SAMPLES = int(THROW_DURATION_S * RATE_HZ)
@@ -56,26 +62,6 @@ def reduced_two_throws_seconds(reduced: ReducedSwitch, repeats: int = 30) -> flo
     return statistics.median(times)
 
 
-def validation_series(plant: Plant) -> list[dict]:
-    """Plant runs of the 25 validation references (shared by every representation)."""
-    out = []
-    for seed in VALIDATION_SEEDS:
-        reference, start, trajectory = random_push_run(plant, seed, 100.0)
-        out.append({"seed": seed, "reference": reference, "start": start, "plant": trajectory})
-    return out
-
-
-def validate(reduced: ReducedSwitch, series: list[dict]) -> dict[str, list[float]]:
-    mse = {"position": [], "velocity": [], "force": []}
-    for item in series:
-        start, plant = item["start"], item["plant"]
-        s0 = reduced.initial_state(start["rail_position_m"], start["angle_rad"])
-        out = reduced.simulate(s0, item["reference"], len(plant.t_s))
-        for key, signal in (("position", "rail_position_m"), ("velocity", "rail_velocity_m_s"), ("force", "drive_force_n")):
-            mse[key].append(float(np.mean((out[signal] - plant[signal]) ** 2)))
-    return mse
-
-
 def box_plot(results: dict[str, dict[str, list[float]]], path: Path) -> None:
     fig, axes = plt.subplots(1, 3, figsize=(12, 4))
     for ax, (key, unit) in zip(axes, (("position", "m²"), ("velocity", "(m/s)²"), ("force", "N²"))):
@@ -89,18 +75,40 @@ def box_plot(results: dict[str, dict[str, list[float]]], path: Path) -> None:
     plt.close(fig)
 
 
+STRESS_RATES_HZ = (10.0, 25.0, 50.0, 100.0)
+
+
+def stress(representation, weights, series: int) -> dict:
+    """Divergences of one representation over the stress set and fault extremes, per rate and substeps."""
+    from services.diagnosis import DIAGNOSIS_SUBSTEPS
+
+    runs, diverged, worst = {}, 0, 0.0
+    for rate in STRESS_RATES_HZ:
+        for substeps in sorted({1, DIAGNOSIS_SUBSTEPS}):
+            reduced = ReducedSwitch(representation, weights, ReducedParams(substeps=substeps), rate_hz=rate,
+                                    compiled=True)
+            found = divergence(reduced, series)
+            runs[f"{rate:g}Hz/{substeps}"] = len(found.diverged_series) + len(found.diverged_fault_throws)
+            diverged += runs[f"{rate:g}Hz/{substeps}"]
+            worst = max(worst, found.max_excursion_m)
+    return {"series": series, "fault_throws": found.fault_throws, "diverged": diverged,
+            "max_excursion_m": worst, "diverged_per_rate_and_substeps": runs}
+
+
 def main() -> None:
     p = parser(__doc__)
     p.add_argument("--models", default="poly,nn,causal")
     p.add_argument("--out", default="out/reduced-validation", help="directory for the JSON summary and box plot")
     p.add_argument("--shipped", action="store_true", help="validate the shipped weights instead of retraining")
+    p.add_argument("--stress", type=int, default=0, metavar="N",
+                   help="also look for divergence on N stress series and the fault extremes, at every rate")
     args = p.parse_args()
     pin_to_one_core()
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
     plant = Plant()
     plant_seconds = plant_two_throws_seconds(plant)
-    series = validation_series(plant)
+    series = plant_series(plant, VALIDATION_SEEDS)
     result, mses = {}, {}
     for name in args.models.split(","):
         representation = REPRESENTATIONS[name]
@@ -120,10 +128,13 @@ def main() -> None:
             "plant_wall_seconds": round(plant_seconds, 4),
             "train_seconds": round(train_seconds, 1),
             "position_rmse_m": float(np.sqrt(np.mean(mses[name]["position"]))),
+            "max_series_position_rmse_m": float(np.sqrt(np.max(mses[name]["position"]))),
             "velocity_rmse_m_s": float(np.sqrt(np.mean(mses[name]["velocity"]))),
             "force_rmse_n": float(np.sqrt(np.mean(mses[name]["force"]))),
             "compiled": reduced.compiled,
         }
+        if args.stress:
+            result[name]["stress"] = stress(representation, weights, args.stress)
     (out_dir / "validation.json").write_text(json.dumps({"summary": result, "mse_per_series": mses,
                                                          "series_seeds": list(VALIDATION_SEEDS)}, indent=1))
     box_plot(mses, out_dir / "validation_boxplot.png")

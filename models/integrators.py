@@ -4,6 +4,12 @@ ROS2 is the two-stage, second-order, L-stable Rosenbrock method of Verwer et al.
 (SIAM J. Sci. Comput. 20, 1999), gamma = 1 + 1/sqrt(2). W (the exact AD Jacobian
 unless the caller gives a stand-in) is taken at the start of every substep and its
 factorisation shared by both stages.
+
+`relax` advances a gating variable (a level between 0 and 1 that relaxes at
+state-dependent rates) by the exact solution of its linear equation with the rates
+frozen: the Rush-Larsen scheme (Rush and Larsen, IEEE Trans. Biomed. Eng. 25, 1978).
+It keeps the level inside [0, 1] for any step, where a linearly implicit step whose
+W was taken before a rate switched on would overshoot.
 """
 from __future__ import annotations
 
@@ -71,3 +77,13 @@ def ros2(rhs: Callable, state, h: float, substeps: int, w_rhs: Callable | None =
         k2 = solve(f(state + h * k1, t1) - 2.0 * k1)
         state = state + h * (1.5 * k1 + 0.5 * k2)
     return state
+
+
+def relax(level, rise_1_s, fall_1_s, h: float):
+    """Exact step of d(level)/dt = rise * (1 - level) - fall * level over `h` with the rates frozen.
+
+    The result is a convex combination of the level and its target rise / (rise + fall), so it
+    stays in [0, 1] whatever the rates and the step."""
+    total = rise_1_s + fall_1_s
+    decay = ca.exp(-total * h)
+    return decay * level - ca.expm1(-total * h) / (total + 1e-300) * rise_1_s

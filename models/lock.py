@@ -33,6 +33,10 @@ class LockParams:
 class LockTerms:
     force_n: object  # on the blades, positive to the right
     energy_j: object  # stored while latched
+    # Each hook's level relaxes between 0 (released) and 1 (latched):
+    # d(level)/dt = latch * (1 - level) - release * level, both rates >= 0 (left, right).
+    latch_1_s: object
+    release_1_s: object
     d_hooks: object  # latch-level derivatives (left, right)
 
 
@@ -50,8 +54,9 @@ def lock_terms(lock: LockParams, drive: DriveParams, adjuster: AdjusterParams, l
     at_right_end = smooth_step(rod_m - (drive.rod_left_m + drive.stroke_m - lock.end_zone_m), w)
     released_left = smooth_step(left_face - drive.linkage_ratio * left_stock_m, w)
     released_right = smooth_step(drive.linkage_ratio * right_stock_m - right_face, w)
-    d_left = lock.latch_rate_1_s * ((1 - hook_left) * smooth_step(-left_out, w) * at_left_end - hook_left * released_left)
-    d_right = lock.latch_rate_1_s * ((1 - hook_right) * smooth_step(-right_out, w) * at_right_end - hook_right * released_right)
+    closed_left, closed_right = smooth_step(-left_out, w), smooth_step(-right_out, w)
+    d_left = lock.latch_rate_1_s * ((1 - hook_left) * closed_left * at_left_end - hook_left * released_left)
+    d_right = lock.latch_rate_1_s * ((1 - hook_right) * closed_right * at_right_end - hook_right * released_right)
     if depth_width_m is None:
         left_depth, right_depth = ca.fmax(left_out, 0.0), ca.fmax(right_out, 0.0)
     else:
@@ -59,7 +64,8 @@ def lock_terms(lock: LockParams, drive: DriveParams, adjuster: AdjusterParams, l
     k = lock.stiffness_n_m
     force = k * (hook_right * right_depth - hook_left * left_depth)
     energy = 0.5 * k * (hook_left * left_depth**2 + hook_right * right_depth**2)
-    return LockTerms(force, energy, ca.vertcat(d_left, d_right))
+    return LockTerms(force, energy, lock.latch_rate_1_s * ca.vertcat(closed_left * at_left_end, closed_right * at_right_end),
+                     lock.latch_rate_1_s * ca.vertcat(released_left, released_right), ca.vertcat(d_left, d_right))
 
 
 def latched_hooks(lock: LockParams, drive: DriveParams, left_stock_m: float, right_stock_m: float,

@@ -1,14 +1,25 @@
 """Reduced hybrid switch model: the plant's motor, controller, drive and adjuster, one learned rail.
 
 Written as CasADi's system-identification example does it: the ODE once in
-SX, a fixed-step integrator step per sample (ROS2, stiff-stable, so obstacle
-friction and contacts of any size are safe), rolled over a throw with `mapaccum`. Every non-smooth law of the plant (free play,
-stock-rail contact, voltage limit) is replaced by a smooth one, so outputs
-have exact derivatives with respect to the fault parameters.
+SX, a fixed-step integrator step per sample, rolled over a throw with `mapaccum`.
+Every non-smooth law of the plant (free play, stock-rail contact, voltage limit)
+is replaced by a smooth one, so outputs have exact derivatives with respect to
+the fault parameters.
+
+Each integration step splits the state in two (Strang splitting): the lock's hook
+levels relax exactly over half a step (Rush-Larsen, models/integrators.py), the
+six mechanical and electrical states take one ROS2 step (stiff-stable, so obstacle
+friction and contacts of any size are safe) with the hooks held, and the hooks relax
+over the other half. A hook lets go at up to 200/s, within one 20 ms sample, and the
+rate switches on only once the driving bolt arrives: a Rosenbrock step whose W was
+taken before that overshot the level below zero, and a negative hook turned the
+lock's holding spring into one that pushes the blade away (energy from nowhere, and
+the rollout diverged). The exact relaxation keeps every level in [0, 1].
 """
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 import platform
 import shutil
@@ -24,9 +35,9 @@ import numpy as np
 
 from models.adjuster import adjuster_force, smooth_contact
 from models.drive import adjuster_on_rod, rod_kinematics
-from models.integrators import ros2
+from models.integrators import relax, ros2
 from models.faults import FAULT_ORDER, fault_vector, obstacle_profile, unpack
-from models.lock import latched_hooks, lock_terms
+from models.lock import LockTerms, latched_hooks, lock_terms
 from models.motor import controller, motor_derivatives
 from models.plant import PlantParams
 from models.rail_models import Representation
@@ -43,7 +54,11 @@ class ReducedParams:
     """Integration and smoothing settings of the reduced model."""
 
     plant: PlantParams = field(default_factory=PlantParams)
-    substeps: int = 1  # ROS2 steps per sample
+    substeps: int = 1  # integration steps per sample, at least; more where a sample is longer than max_step_s
+    # The longest integration step: the one the rail representations are trained at (models/training.py).
+    # A learned causal map is not dissipative by construction, and past its training step its
+    # explicitly treated part grows (the causal rail diverged at 10 Hz in one step per sample).
+    max_step_s: float = 0.02
     # Contacts softer than the plant's: the reduced model needs their effect, not their stiffness.
     stock_stiffness_n_m: float = 1.0e6  # end stops at 1.00 m and 1.20 m, seen at the drive point
     contact_damping_s_m: float = 1.0  # Hunt-Crossley lambda of every reduced-model contact
@@ -60,6 +75,10 @@ class ReducedParams:
     # flexible rails; calibrated per representation (models/params/*.json).
     bearing_port: tuple[tuple[float, float], tuple[float, float]] = ((1.0, 0.0), (1.0, 0.0))
     port_velocity_m_s: float = 0.002
+
+    def steps_per_sample(self, rate_hz: float) -> int:
+        """`substeps`, or more so that no step is longer than `max_step_s`."""
+        return max(self.substeps, math.ceil(1.0 / (rate_hz * self.max_step_s) - 1e-9))
 
 
 def stock_rail_force(params: ReducedParams, x, v):
@@ -159,16 +178,24 @@ class ReducedSwitch:
         self.rate_hz = rate_hz
         self._adjuster = replace(params.plant.adjuster, contact_stiffness_n_m=params.bolt_stiffness_n_m,
                                  contact_damping_s_m=params.contact_damping_s_m)
-        self._lock = replace(params.plant.lock, stiffness_n_m=params.lock_stiffness_n_m,
+        self._lock_params = replace(params.plant.lock, stiffness_n_m=params.lock_stiffness_n_m,
                              latch_rate_1_s=params.latch_rate_1_s or params.plant.lock.latch_rate_1_s)
         self.step = self._build_step()
         self.compiled = compiled  # rollouts compiled to machine code when a C compiler is there
+
+    def _lock(self, s, theta) -> LockTerms:
+        """The end-position lock at state `s` (rod from the motor angle, blades at the drive point)."""
+        p = self.params.plant
+        faults = unpack(theta)
+        rod_m = rod_kinematics(p.drive, s[0], s[1])[0]
+        return lock_terms(self._lock_params, p.drive, self._adjuster, p.rail.left_stock_m, p.rail.right_stock_m, s[4],
+                          rod_m, s[6:8], faults["left_bolt_offset"], faults["right_bolt_offset"],
+                          self.params.contact_width_m)
 
     def _ode(self, s, omega_ref, theta, w, frozen_rail=None):
         """Derivative and outputs; with `frozen_rail` (a state), the rail is its linear stand-in there."""
         p = self.params.plant
         angle, omega, integral, current, x, v = (s[i] for i in range(6))
-        hooks = s[6:8]
         faults = unpack(theta)
         rod_m, rod_velocity, lever_m = rod_kinematics(p.drive, angle, omega)
         adjuster_m, adjuster_velocity = adjuster_on_rod(p.drive, x, v)
@@ -179,8 +206,7 @@ class ReducedSwitch:
         rod_force = adjuster_force(self._adjuster, rod_m, rod_velocity, adjuster_m, adjuster_velocity,
                                    faults["left_bolt_offset"], faults["right_bolt_offset"], contact)
         drive_force = p.drive.linkage_ratio * rod_force
-        lock = lock_terms(self._lock, p.drive, self._adjuster, p.rail.left_stock_m, p.rail.right_stock_m, x, rod_m, hooks,
-                          faults["left_bolt_offset"], faults["right_bolt_offset"], self.params.contact_width_m)
+        lock = self._lock(s, theta)
         external = (drive_force + lock.force_n + stock_rail_force(self.params, x, v)
                     - self._bearing_damping(faults["bearing_friction"], v) * v
                     - faults["obstacle_friction"] * obstacle_profile(p.obstacle, x, faults["obstacle_position"]) * v)
@@ -208,20 +234,35 @@ class ReducedSwitch:
                 + (1.0 - rightwards) * (gain_left * bearing_friction + offset_left))
 
     def _build_step(self) -> ca.Function:
-        """One sample: `substeps` ROS2 steps with the reference linear over the sample."""
+        """One sample: `substeps` split steps (see the module's docstring), the reference linear over the sample."""
         s = ca.SX.sym("s", len(STATES))
         ref = ca.SX.sym("ref", 2)  # reference at the sample interval's start and end
         theta = ca.SX.sym("fault", len(FAULT_ORDER))
         w = ca.SX.sym("w", self.representation.size)
+        substeps = self.params.steps_per_sample(self.rate_hz)
+        h = 1.0 / (self.rate_hz * substeps)
+        mechanical = len(STATES) - 2  # the hook levels are the last two states
 
-        def rhs(state, fraction):
-            return self._ode(state, ref[0] + (ref[1] - ref[0]) * fraction, theta, w)[0]
+        def relax_hooks(state, duration):
+            lock = self._lock(state, theta)
+            return ca.vertcat(state[:mechanical], relax(state[mechanical:], lock.latch_1_s, lock.release_1_s, duration))
 
-        def w_rhs(state, fraction, point):
-            return self._ode(state, ref[0] + (ref[1] - ref[0]) * fraction, theta, w, frozen_rail=point)[0]
+        state = s
+        for k in range(substeps):
+            state = relax_hooks(state, h / 2)
+            hooks = state[mechanical:]
 
-        h = 1.0 / (self.rate_hz * self.params.substeps)
-        state = ros2(rhs, s, h, self.params.substeps, w_rhs)
+            def omega_ref(fraction, k=k):  # fraction of this substep -> reference
+                return ref[0] + (ref[1] - ref[0]) * (k + fraction) / substeps
+
+            def rhs(x, fraction, hooks=hooks, omega_ref=omega_ref):
+                return self._ode(ca.vertcat(x, hooks), omega_ref(fraction), theta, w)[0][:mechanical]
+
+            def w_rhs(x, fraction, point, hooks=hooks, omega_ref=omega_ref):
+                return self._ode(ca.vertcat(x, hooks), omega_ref(fraction), theta, w, frozen_rail=point)[0][:mechanical]
+
+            state = ca.vertcat(ros2(rhs, state[:mechanical], h, 1, w_rhs), hooks)
+            state = relax_hooks(state, h / 2)
         _, output = self._ode(state, ref[1], theta, w)
         state, output = ca.cse([state, output])
         return ca.Function("sample_step", [s, ref, theta, w], [state, output],

@@ -22,7 +22,7 @@ import numpy as np
 from models.faults import fault_vector
 from models.integrators import ros2
 from models.plant import Plant
-from models.rail_models import FORCE_SCALE_N, GAIN_SCALE, Representation
+from models.rail_models import FORCE_SCALE_N, CausalRail, NNRail, Representation
 from models.reduced import ReducedParams, stock_rail_force
 from models.reference import Reference
 
@@ -45,19 +45,31 @@ class RailData:
     acceleration_m_s2: np.ndarray
 
 
-def random_reference(rng: np.random.Generator, duration_s: float, gear_ratio: float = 250.0) -> Reference:
-    """Random back-and-forth pushes: moves to random crank angles in [0, pi] at random speeds, with pauses."""
+def random_reference(rng: np.random.Generator, duration_s: float, gear_ratio: float = 250.0, *,
+                     crank_rad: tuple[float, float] = (0.0, np.pi), speed_rad_s: tuple[float, float] = (40.0, 140.0),
+                     ramp_s: tuple[float, float] = (0.3, 0.3), pause_s: tuple[float, float] = (0.2, 1.5)) -> Reference:
+    """Random back-and-forth pushes: moves to random crank angles at random motor speeds, with pauses.
+
+    The defaults are the training and validation pushes; `stress_reference` widens every range.
+    """
     t, v = [0.0], [0.0]
     crank = 0.0
     while t[-1] < duration_s:
-        target = rng.uniform(0.0, np.pi)
-        speed = rng.uniform(40.0, 140.0) * np.sign(target - crank)
-        ramp = 0.3
+        target = rng.uniform(*crank_rad)
+        speed = rng.uniform(*speed_rad_s) * np.sign(target - crank)
+        ramp = ramp_s[0] if ramp_s[0] == ramp_s[1] else rng.uniform(*ramp_s)  # a fixed ramp draws nothing
         run = max(abs(target - crank) * gear_ratio / abs(speed) - ramp, 0.05)
-        t += [t[-1] + ramp, t[-1] + ramp + run, t[-1] + 2 * ramp + run, t[-1] + 2 * ramp + run + rng.uniform(0.2, 1.5)]
+        t += [t[-1] + ramp, t[-1] + ramp + run, t[-1] + 2 * ramp + run, t[-1] + 2 * ramp + run + rng.uniform(*pause_s)]
         v += [speed, speed, 0.0, 0.0]
         crank += speed * (run + ramp) / gear_ratio
     return Reference(np.array(t), np.array(v))
+
+
+def stress_reference(rng: np.random.Generator, duration_s: float, gear_ratio: float = 250.0) -> Reference:
+    """Pushes beyond the training ones: past both dead centres, from crawling to nearly twice a
+    throw's motor speed, with ramps from 50 to 500 ms and no pause at all to a second's."""
+    return random_reference(rng, duration_s, gear_ratio, crank_rad=(-0.2, np.pi + 0.2), speed_rad_s=(10.0, 250.0),
+                            ramp_s=(0.05, 0.5), pause_s=(0.0, 1.0))
 
 
 def settled_state(plant: Plant) -> np.ndarray:
@@ -153,37 +165,6 @@ def _numeric(residual_and_jacobian: ca.Function) -> Callable[[np.ndarray], tuple
     return evaluate
 
 
-# -- parametrisations: z (unconstrained, order one) <-> physical weights ---------------------------
-POLY_SCALES = {"m": 100.0, "c0": 1e3, "c1": 1e5, "c2": 1e7, "d0": 1e3, "d1": 1e4, "d2": 1e5}
-# The blades' effective mass at the drive point is at least that of the adjuster, stretcher
-# bars and toe.
-MIN_MASS_KG = 150.0
-
-
-def weights_from_z(representation: Representation, z):
-    """Physical weights; non-negative poly coefficients as scale * z^2, masses above MIN_MASS_KG."""
-    if representation.name == "poly":
-        parts = [MIN_MASS_KG + POLY_SCALES["m"] * z[0] ** 2]
-        parts += [POLY_SCALES[k] * z[i] ** 2 for i, k in enumerate(POLY_SCALES) if k != "m"] + [1.10 + 0.1 * z[7]]
-        return ca.vertcat(*parts) if isinstance(z, (ca.SX, ca.MX)) else np.array(parts, dtype=float)
-    if representation.name == "nn":
-        mass, xfix = MIN_MASS_KG + 100.0 * z[0] ** 2, 1.10 + 0.1 * z[1]
-        rest = z[2:]
-        return ca.vertcat(mass, xfix, rest) if isinstance(z, (ca.SX, ca.MX)) else np.concatenate([[mass, xfix], rest])
-    return z
-
-
-def z_from_weights(representation: Representation, w: np.ndarray) -> np.ndarray:
-    w = np.asarray(w, dtype=float)
-    mass_z = np.sqrt(max(w[0] - MIN_MASS_KG, 0.0) / 100.0)
-    if representation.name == "poly":
-        return np.array([mass_z] + [np.sqrt(w[i] / POLY_SCALES[k]) for i, k in enumerate(POLY_SCALES) if k != "m"]
-                        + [(w[7] - 1.10) / 0.1])
-    if representation.name == "nn":
-        return np.concatenate([[mass_z, (w[1] - 1.10) / 0.1], w[2:]])
-    return w.copy()
-
-
 # -- acausal: multiple shooting on rail data --------------------------------------------------------
 def rail_step_function(representation: Representation, reduced: ReducedParams) -> ca.Function:
     """(x, v, F at sample start, F at sample end, w) -> (x, v) one sample later, as in the reduced switch."""
@@ -228,7 +209,7 @@ def acausal_residuals(representation: Representation, reduced: ReducedParams, da
     step = rail_step_function(representation, reduced)
     roll = step.mapaccum("segment", SEGMENT_SAMPLES)
     z = ca.MX.sym("z", representation.size)
-    w = weights_from_z(representation, z)
+    w = representation.weights_from_z(z)
     s0 = ca.MX.sym("s0", 2)
     f = ca.MX.sym("f", 2, SEGMENT_SAMPLES)
     states = roll(s0, f, ca.repmat(w, 1, SEGMENT_SAMPLES))
@@ -240,28 +221,9 @@ def acausal_residuals(representation: Representation, reduced: ReducedParams, da
     target = measured.transpose(0, 2, 1).reshape(2, -1)
     scale = ca.DM([[1.0 / POSITION_RESIDUAL_M], [1.0 / VELOCITY_RESIDUAL_M_S]])
     residual = ca.vec((predicted - ca.DM(target)) * ca.repmat(scale, 1, predicted.shape[1]))
-    if representation.name == "nn":
+    if isinstance(representation, NNRail):
         residual = ca.vertcat(residual, np.sqrt(NN_RIDGE) * z[2:])  # networks only, not mass and xfix
     return _numeric(ca.Function("acausal_residual", [z], [residual, ca.jacobian(residual, z)]))
-
-
-# -- initial weights ---------------------------------------------------------------------------
-def initial_weights(representation: Representation, seed: int) -> np.ndarray:
-    """A physically plausible, seeded start: 200 kg, 1 kN/m spring, 10 kN s/m damper at mid-travel."""
-    rng = np.random.default_rng(seed)
-    shapes = representation.shapes
-    if representation.name == "poly":
-        return representation.flatten(dict(m=200.0, c0=1e3, c1=1e3, c2=1e3, d0=1e4, d1=1e3, d2=1e3, xfix=1.10))
-    if representation.name == "nn":
-        params = {k: rng.normal(0.0, 1.0, shape) for k, shape in shapes.items()}
-        params.update(m=200.0, xfix=1.10, cb1=np.sqrt(1e3) / GAIN_SCALE, db1=np.sqrt(1e4) / GAIN_SCALE)
-        params.update(cw1=0.01 * params["cw1"], dw1=0.01 * params["dw1"])
-        return representation.flatten(params)
-    params = {k: rng.normal(0.0, 1.0 / np.sqrt(shape[-1] if len(shape) == 2 else 1), shape) for k, shape in shapes.items()}
-    params["w1"] = 0.1 * params["w1"]
-    params["w0"][:, 2] = 0.0  # acceleration enters through the toe's inertia until the data says otherwise
-    params["b1"] = np.zeros(())
-    return representation.flatten(params)
 
 
 # -- causal: regression, then fine-tuning inside the reduced switch model ---------------------------
@@ -272,7 +234,7 @@ RIDGE = 1e-2  # weight decay of the causal regression
 ACCELERATION_INPUT_RIDGE = 1e3
 
 
-def causal_regression(representation: Representation, reduced: ReducedParams, data: list[RailData]) -> Callable:
+def causal_regression(representation: CausalRail, reduced: ReducedParams, data: list[RailData]) -> Callable:
     """z -> (residuals, Jacobian) of g(x, v, a) minus the port force, in kN, plus a small ridge term.
 
     The port force is what the representation balances inside the reduced switch:
@@ -290,7 +252,7 @@ def causal_regression(representation: Representation, reduced: ReducedParams, da
     row = ca.Function("causal_row", [x, v, a, f, z], [r, ca.jacobian(r, z)])
     rows = row.map(columns.shape[1], "serial")
     decay = np.full(representation.size, RIDGE)
-    decay[_acceleration_input_weights(representation)] = ACCELERATION_INPUT_RIDGE
+    decay[representation.acceleration_input_weights()] = ACCELERATION_INPUT_RIDGE
     ridge = np.diag(np.sqrt(decay))
 
     def evaluate(zv: np.ndarray):
@@ -298,14 +260,6 @@ def causal_regression(representation: Representation, reduced: ReducedParams, da
         r_all = np.concatenate([np.asarray(r_all).ravel(), ridge @ zv])
         return r_all, np.vstack([np.asarray(j_all).reshape(representation.size, -1, order="F").T, ridge])
     return evaluate
-
-
-def _acceleration_input_weights(representation: Representation) -> np.ndarray:
-    """Flat indices of the first-layer weights that multiply the acceleration input."""
-    marker = np.zeros(representation.size)
-    probe = representation.unflatten(marker.copy())
-    probe["w0"][:, 2] = 1.0
-    return np.flatnonzero(representation.flatten(probe))
 
 
 @dataclass(frozen=True)
@@ -384,12 +338,12 @@ def train(representation: Representation, plant: Plant, *, seed: int = 0, series
     from models.reduced import ReducedSwitch
 
     data = training_data(plant, series_seeds)
-    w0 = initial_weights(representation, seed)
+    w0 = representation.initial_weights(seed)
     stages = {}
     if representation.acausal:
         z, stages["shooting"] = _fit("shooting", acausal_residuals(representation, ReducedParams(), data),
-                                     z_from_weights(representation, w0), iterations, progress)
-        return Trained(representation.name, weights_from_z(representation, z), stages)
+                                     representation.z_from_weights(w0), iterations, progress)
+        return Trained(representation.name, representation.weights_from_z(z), stages)
     w, stages["regression"] = _fit("regression", causal_regression(representation, ReducedParams(), data), w0,
                                    iterations, progress)
     reduced = ReducedSwitch(representation, w)

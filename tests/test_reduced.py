@@ -172,3 +172,86 @@ def test_compiled_rollout_matches_the_interpreted_one_and_leaves_no_files(tmp_pa
     if compiled.compiled:  # a C compiler was found; otherwise both are interpreted
         np.testing.assert_allclose(b["current_a"], a["current_a"], rtol=1e-9, atol=1e-9)
     assert os.listdir(tmp_path) == []
+
+
+# -- stability: no input makes a shipped model diverge (see models/validation.py) -------------------
+@pytest.fixture(scope="module")
+def hardest_plant_series(plant):
+    from models.validation import QUICK_VALIDATION_SEEDS, plant_series
+
+    return plant_series(plant, QUICK_VALIDATION_SEEDS)
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_shipped_models_follow_the_plant_within_4_mm_on_the_hardest_validation_series(name, hardest_plant_series):
+    """Seed 1003 once diverged (1e57 m) and 1023 drifted 13 cm with poly: hooks that overshot below zero."""
+    from models.validation import validate
+
+    representation, weights, _ = shipped.load(name)
+    mse = validate(ReducedSwitch(representation, weights, compiled=True), hardest_plant_series)["position"]
+    assert max(np.sqrt(mse)) < 0.004, np.sqrt(mse)  # 2 % of the 0.20 m stroke
+
+
+# Stress pushes that once diverged for causal at 10 samples/s, even with two steps per sample.
+HARD_STRESS_SEEDS = (100_000, 100_002, 100_054)
+
+
+@pytest.mark.parametrize("name", MODELS)
+@pytest.mark.parametrize("rate_hz", [10.0, 50.0])
+def test_shipped_models_stay_on_the_travel_under_stress_pushes(name, rate_hz):
+    from models.training import stress_reference
+    from models.validation import DIVERGED_BEYOND_M, STRESS_SECONDS, excursion_m
+
+    representation, weights, _ = shipped.load(name)
+    reduced = ReducedSwitch(representation, weights, rate_hz=rate_hz, compiled=True)
+    for seed in HARD_STRESS_SEEDS:
+        reference = stress_reference(np.random.default_rng(seed), STRESS_SECONDS)
+        out = reduced.simulate(reduced.initial_state(1.0, 0.0), reference, int(STRESS_SECONDS * rate_hz))
+        assert excursion_m(out["rail_position_m"], reduced) < DIVERGED_BEYOND_M, seed
+
+
+def test_hook_levels_stay_between_0_and_1_when_a_bolt_arrives_within_a_step():
+    """The lock's hooks relax exactly (Rush-Larsen): a hook whose release switches on during a step,
+    as the driving bolt arrives, never overshoots out of [0, 1], whatever the step and the speed."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from models.drive import motor_angle_at_rod
+
+    representation, weights, _ = shipped.load("poly")
+    reduced = {rate: ReducedSwitch(representation, weights, rate_hz=rate) for rate in (10.0, 50.0)}
+    p = reduced[10.0].params.plant
+    free_play = p.adjuster.free_play_m
+
+    @settings(max_examples=40, deadline=None, derandomize=True)
+    @given(rate=st.sampled_from(sorted(reduced)), speed=st.floats(20.0, 300.0), before_m=st.floats(0.0, 0.004),
+           bolt=st.floats(-0.02, 0.2), leftwards=st.booleans())
+    def check(rate, speed, before_m, bolt, leftwards):
+        if leftwards:  # closed at the right, the right bolt about to reach the adjuster's release point
+            rod = p.drive.linkage_ratio * p.rail.right_stock_m - free_play - bolt + before_m
+            s = [motor_angle_at_rod(p.drive, rod), -speed, 0.0, 0.0, p.rail.right_stock_m, 0.0, 0.0, 1.0]
+        else:
+            rod = p.drive.linkage_ratio * p.rail.left_stock_m + free_play + bolt - before_m
+            s = [motor_angle_at_rod(p.drive, rod), speed, 0.0, 0.0, p.rail.left_stock_m, 0.0, 1.0, 0.0]
+        refs = np.array([s[1], s[1]])
+        s_next, _ = reduced[rate].step(np.array(s), refs, fault_vector({"left_bolt_offset": bolt,
+                                                                        "right_bolt_offset": bolt}), weights)
+        levels = np.asarray(s_next).ravel()[6:]
+        assert np.all((levels >= 0.0) & (levels <= 1.0)), levels
+
+    check()
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_shipped_weights_were_validated_with_this_model_code(name, hardest_plant_series):
+    """Weights carry the position errors they had when trained. A change to the reduced model (or the plant)
+    that changes them means: revalidate (and retrain or recalibrate) before shipping."""
+    from models.validation import validate
+
+    representation, weights, _ = shipped.load(name)
+    stored = shipped.validation(name)
+    assert stored["seeds"] == [s.seed for s in hardest_plant_series]
+    mse = validate(ReducedSwitch(representation, weights, compiled=True), hardest_plant_series)["position"]
+    # 2 %: far above rounding differences between machines (1e-6 relative), far below what the
+    # hooks' release rate (50/s or 200/s) changed.
+    np.testing.assert_allclose(np.sqrt(mse), stored["position_rmse_m"], rtol=0.02)
