@@ -6,24 +6,30 @@ force F at the adjuster-rail connection, position x and velocity v there.
 - `poly`: generalised mass-spring-damper with polynomial spring and damper
   (Proposition 1: non-negative coefficients make it dissipative).
 - `nn`: spring c(x)^2 (x - xfix) and damper d(x, v)^2 v, with c and d one-hidden-layer
-  tanh networks, linear mass (Proposition 2: stiffness depending on position only
-  keeps the spring conservative, so the component is dissipative).
-- `causal`: F = g(x, v, a): a one-hidden-layer tanh network plus the fixed inertia of
-  the toe (CAUSAL_MASS_KG * a), which keeps the map invertible in a; the acceleration
-  is found by a Newton step from a = 0 with its slope floored at half that mass (the
-  learned dependence on a is weak, so one step is accurate).
+  networks, linear mass (Proposition 2: stiffness depending on position only keeps the
+  spring conservative, so the component is dissipative).
+- `causal`: F = g(x, v, a): a one-hidden-layer network plus the fixed inertia of the toe
+  (CAUSAL_MASS_KG * a), which keeps the map invertible in a; the acceleration is found
+  by a Newton step from a = 0 with its slope floored at half that mass (the learned
+  dependence on a is weak, so one step is accurate).
+
+The hidden units are algebraic sigmoids, z / sqrt(1 + z^2): smooth, odd and bounded
+like tanh, but a square root and a division instead of a transcendental function,
+which makes the causal switch model's compiled step a fifth faster (the network is
+most of its work).
 
 Parameters live in physical units in plain dicts of numpy arrays; `flatten` and
-`unflatten` map them to the vector the optimisers and CasADi functions see.
+`unflatten` map them to the vector the CasADi functions see. Training works on an
+unconstrained vector z of order one (`weights_from_z`), where the bounds of each
+form (non-negative coefficients, a floor on the mass) are built in.
 """
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
 
 from models.smooth import softplus
+from schemas.faults import RAIL_MODELS
 
 # Typical magnitudes used to scale network inputs and outputs to order one.
 POSITION_SCALE_M = 0.1
@@ -32,19 +38,26 @@ ACCELERATION_SCALE_M_S2 = 1.0
 FORCE_SCALE_N = 1000.0
 GAIN_SCALE = 100.0  # c and d networks output sqrt-stiffness / sqrt-damping over this
 CAUSAL_MASS_KG = 150.0  # adjuster, stretcher bars and toe: the least inertia at the drive point
+# The blades' effective mass at the drive point is at least that of the adjuster, stretcher bars and toe.
+MIN_MASS_KG = 150.0
+MID_TRAVEL_M = 1.10
+
+
+def sigmoid(z):
+    """The hidden units' activation z / sqrt(1 + z^2) and its derivative (1 + z^2)^(-3/2)."""
+    inverse_norm = 1.0 / ca.sqrt(1.0 + z * z)
+    return z * inverse_norm, inverse_norm**3
 
 
 def _mlp(inputs, w0, b0, w1, b1):
-    """One hidden tanh layer, linear output."""
-    return ca.mtimes(w1, ca.tanh(ca.mtimes(w0, inputs) + b0)) + b1
+    """One hidden layer, linear output."""
+    return ca.mtimes(w1, sigmoid(ca.mtimes(w0, inputs) + b0)[0]) + b1
 
 
-def _floored_inertia(slope):
-    """dF/da of the causal map, kept above half the toe's inertia (smoothly), so a is always solvable."""
-    return softplus(slope - CAUSAL_MASS_KG / 2, CAUSAL_MASS_KG / 10) + CAUSAL_MASS_KG / 2
+def _is_symbolic(z) -> bool:
+    return isinstance(z, (ca.SX, ca.MX))
 
 
-@dataclass(frozen=True)
 class Representation:
     """Shapes of a representation's parameters and its constitutive law."""
 
@@ -76,98 +89,224 @@ class Representation:
     # -- constitutive law ---------------------------------------------------------------------
     def force(self, x, v, a, w):
         """Force at the port that produces acceleration a at state (x, v)."""
-        p = self.unflatten(w)
-        if self.name == "poly":
-            return p["m"] * a + self.spring(x, p) + p["d0"] * v + p["d1"] * v**3 + p["d2"] * v**5
-        if self.name == "nn":
-            return p["m"] * a + self.spring(x, p) + self.damping(x, v, p) * v
-        u = ca.vertcat((x - 1.10) / POSITION_SCALE_M, v / VELOCITY_SCALE_M_S, a / ACCELERATION_SCALE_M_S2)
-        return CAUSAL_MASS_KG * a + FORCE_SCALE_N * _mlp(u, p["w0"], p["b0"], p["w1"], p["b1"])
+        raise NotImplementedError
 
-    def spring(self, x, p):
-        delta = x - p["xfix"]
-        if self.name == "poly":
-            return p["c0"] * delta + p["c1"] * delta**3 + p["c2"] * delta**5
-        return self.stiffness_nn(x, p) * delta
-
-    def stiffness_nn(self, x, p):
-        """c(x)^2 of the NN spring."""
-        c = GAIN_SCALE * _mlp((x - p["xfix"]) / POSITION_SCALE_M, p["cw0"], p["cb0"], p["cw1"], p["cb1"])
-        return c**2
-
-    def damping(self, x, v, p):
-        """d(x, v)^2 of the NN damper."""
-        d = GAIN_SCALE * _mlp(ca.vertcat((x - p["xfix"]) / POSITION_SCALE_M, v / VELOCITY_SCALE_M_S),
-                              p["dw0"], p["db0"], p["dw1"], p["db1"])
-        return d**2
-
-    def acceleration(self, x, v, force, w, newton_steps: int = 1):
-        """Acceleration under port force `force`: explicit for acausal forms, Newton for the causal map."""
-        if self.acausal:
-            p = self.unflatten(w)
-            return (force - (self.force(x, v, 0.0, w))) / p["m"]
-        a_sym = ca.SX.sym("a")
-        residual = self.force(x, v, a_sym, w) - force
-        slope = _floored_inertia(ca.jacobian(residual, a_sym))
-        a = ca.SX(0.0)
-        for _ in range(newton_steps):
-            r, s = ca.substitute([residual, slope], [a_sym], [a])
-            a = a - r / s
-        return a
+    def acceleration(self, x, v, force, w):
+        """Acceleration under port force `force`."""
+        raise NotImplementedError
 
     def linearisation(self, x, v, w):
-        """Mass, stiffness and damping of a dissipative linear stand-in at (x, v), all non-negative.
+        """Mass, stiffness and damping of a dissipative linear stand-in at (x, v), all non-negative:
+        used only as the W matrix of the integrator."""
+        raise NotImplementedError
 
-        Secant coefficients of the acausal forms (c(x)^2, d(x, v)^2) and the clipped
-        slopes of the causal map: used only as the W matrix of the integrator.
-        """
+    # -- training parametrisation -------------------------------------------------------------
+    def weights_from_z(self, z):
+        """Physical weights from the unconstrained training vector (numeric or symbolic)."""
+        return z
+
+    def z_from_weights(self, w: np.ndarray) -> np.ndarray:
+        return np.asarray(w, dtype=float).copy()
+
+    def initial_weights(self, seed: int) -> np.ndarray:
+        """A physically plausible, seeded start for training."""
+        raise NotImplementedError
+
+
+def _mass_z(mass_kg: float) -> float:
+    return float(np.sqrt(max(mass_kg - MIN_MASS_KG, 0.0) / 100.0))
+
+
+class AcausalRepresentation(Representation):
+    """m*a + spring(x) + damping(x, v)*v = F with m, spring and damping that keep it dissipative."""
+
+    acausal = True
+
+    def spring(self, x, p):
+        raise NotImplementedError
+
+    def damper(self, x, v, p):
+        """The damping force."""
+        raise NotImplementedError
+
+    def force(self, x, v, a, w):
         p = self.unflatten(w)
-        if self.name == "poly":
-            delta = x - p["xfix"]
-            return (p["m"], p["c0"] + 3 * p["c1"] * delta**2 + 5 * p["c2"] * delta**4,
-                    p["d0"] + 3 * p["d1"] * v**2 + 5 * p["d2"] * v**4)
-        if self.name == "nn":
-            return p["m"], self.stiffness_nn(x, p), self.damping(x, v, p)
-        a_sym, x_sym, v_sym = ca.SX.sym("a"), ca.SX.sym("x"), ca.SX.sym("v")
-        g = self.force(x_sym, v_sym, a_sym, w)
-        slopes = ca.substitute([ca.jacobian(g, a_sym), ca.jacobian(g, x_sym), ca.jacobian(g, v_sym)],
-                               [a_sym, x_sym, v_sym], [ca.SX(0.0), x, v])
-        return _floored_inertia(slopes[0]), ca.fmax(slopes[1], 0.0), ca.fmax(slopes[2], 0.0)
+        return p["m"] * a + self.spring(x, p) + self.damper(x, v, p)
+
+    def acceleration(self, x, v, force, w):
+        p = self.unflatten(w)
+        return (force - self.spring(x, p) - self.damper(x, v, p)) / p["m"]
 
     def energy(self, x, v, w, quadrature_points: int = 64):
-        """Stored energy: kinetic plus the spring's potential (acausal forms only)."""
+        """Stored energy: kinetic plus the spring's potential (trapezoid rule of the spring force)."""
         p = self.unflatten(w)
-        kinetic = 0.5 * p["m"] * v**2
         delta = x - p["xfix"]
-        if self.name == "poly":
-            return kinetic + p["c0"] * delta**2 / 2 + p["c1"] * delta**4 / 4 + p["c2"] * delta**6 / 6
         s = np.linspace(0.0, 1.0, quadrature_points + 1)
         weights = np.full(s.size, 1.0 / quadrature_points)
         weights[[0, -1]] *= 0.5
         potential = 0
-        for sk, wk in zip(s, weights):  # trapezoid rule for the integral of the spring force
+        for sk, wk in zip(s, weights):
             potential += wk * self.spring(p["xfix"] + sk * delta, p) * delta
-        return kinetic + potential
+        return 0.5 * p["m"] * v**2 + potential
+
+
+class PolyRail(AcausalRepresentation):
+    """m*a + c0*(x-xfix) + c1*(x-xfix)^3 + c2*(x-xfix)^5 + d0*v + d1*v^3 + d2*v^5 = F, coefficients >= 0."""
+
+    name = "poly"
+    shapes = {k: () for k in ("m", "c0", "c1", "c2", "d0", "d1", "d2", "xfix")}
+    equations = ("m*a + c0*(x-xfix) + c1*(x-xfix)^3 + c2*(x-xfix)^5 + d0*v + d1*v^3 + d2*v^5 = F",)
+    # Training scales: non-negative coefficients as scale * z^2.
+    scales = {"m": 100.0, "c0": 1e3, "c1": 1e5, "c2": 1e7, "d0": 1e3, "d1": 1e4, "d2": 1e5}
+
+    def spring(self, x, p):
+        delta = x - p["xfix"]
+        return p["c0"] * delta + p["c1"] * delta**3 + p["c2"] * delta**5
+
+    def damper(self, x, v, p):
+        return p["d0"] * v + p["d1"] * v**3 + p["d2"] * v**5
+
+    def energy(self, x, v, w, quadrature_points: int = 64):
+        p = self.unflatten(w)
+        delta = x - p["xfix"]
+        return 0.5 * p["m"] * v**2 + p["c0"] * delta**2 / 2 + p["c1"] * delta**4 / 4 + p["c2"] * delta**6 / 6
+
+    def linearisation(self, x, v, w):
+        """Tangent stiffness and damping: non-negative with non-negative coefficients."""
+        p = self.unflatten(w)
+        delta = x - p["xfix"]
+        return (p["m"], p["c0"] + 3 * p["c1"] * delta**2 + 5 * p["c2"] * delta**4,
+                p["d0"] + 3 * p["d1"] * v**2 + 5 * p["d2"] * v**4)
+
+    def weights_from_z(self, z):
+        parts = [MIN_MASS_KG + self.scales["m"] * z[0] ** 2]
+        parts += [self.scales[k] * z[i] ** 2 for i, k in enumerate(self.scales) if k != "m"]
+        parts += [MID_TRAVEL_M + 0.1 * z[7]]
+        return ca.vertcat(*parts) if _is_symbolic(z) else np.array(parts, dtype=float)
+
+    def z_from_weights(self, w):
+        w = np.asarray(w, dtype=float)
+        return np.array([_mass_z(w[0])] + [np.sqrt(w[i] / self.scales[k]) for i, k in enumerate(self.scales) if k != "m"]
+                        + [(w[7] - MID_TRAVEL_M) / 0.1])
+
+    def initial_weights(self, seed: int) -> np.ndarray:
+        """200 kg, 1 kN/m spring, 10 kN s/m damper at mid-travel (deterministic: no draw)."""
+        return self.flatten(dict(m=200.0, c0=1e3, c1=1e3, c2=1e3, d0=1e4, d1=1e3, d2=1e3, xfix=MID_TRAVEL_M))
 
 
 NN_HIDDEN = 15
 CAUSAL_HIDDEN = 50
 
-REPRESENTATIONS: dict[str, Representation] = {
-    "poly": Representation(
-        "poly", {k: () for k in ("m", "c0", "c1", "c2", "d0", "d1", "d2", "xfix")},
-        ("m*a + c0*(x-xfix) + c1*(x-xfix)^3 + c2*(x-xfix)^5 + d0*v + d1*v^3 + d2*v^5 = F",), True),
-    "nn": Representation(
-        "nn", {"m": (), "xfix": (),
-               "cw0": (NN_HIDDEN, 1), "cb0": (NN_HIDDEN, 1), "cw1": (1, NN_HIDDEN), "cb1": (),
-               "dw0": (NN_HIDDEN, 2), "db0": (NN_HIDDEN, 1), "dw1": (1, NN_HIDDEN), "db1": ()},
-        ("m*a + c(x)^2*(x-xfix) + d(x,v)^2*v = F",
-         f"c(x) = {GAIN_SCALE:g} * (Wc1 tanh(Wc0 (x-xfix)/{POSITION_SCALE_M:g} + bc0) + bc1), {NN_HIDDEN} tanh units",
-         f"d(x,v) = {GAIN_SCALE:g} * (Wd1 tanh(Wd0 [(x-xfix)/{POSITION_SCALE_M:g}, v/{VELOCITY_SCALE_M_S:g}] + bd0) + bd1), "
-         f"{NN_HIDDEN} tanh units"), True),
-    "causal": Representation(
-        "causal", {"w0": (CAUSAL_HIDDEN, 3), "b0": (CAUSAL_HIDDEN, 1), "w1": (1, CAUSAL_HIDDEN), "b1": ()},
-        (f"F = {CAUSAL_MASS_KG:g}*a + {FORCE_SCALE_N:g} * (W1 tanh(W0 [(x-1.1)/{POSITION_SCALE_M:g}, "
-         f"v/{VELOCITY_SCALE_M_S:g}, a/{ACCELERATION_SCALE_M_S2:g}] + b0) + b1), {CAUSAL_HIDDEN} tanh units",
-         "a solved from F by Newton's method"), False),
-}
+
+class NNRail(AcausalRepresentation):
+    """m*a + c(x)^2*(x-xfix) + d(x,v)^2*v = F, c and d one-hidden-layer networks."""
+
+    name = "nn"
+    shapes = {"m": (), "xfix": (),
+              "cw0": (NN_HIDDEN, 1), "cb0": (NN_HIDDEN, 1), "cw1": (1, NN_HIDDEN), "cb1": (),
+              "dw0": (NN_HIDDEN, 2), "db0": (NN_HIDDEN, 1), "dw1": (1, NN_HIDDEN), "db1": ()}
+    equations = (
+        "m*a + c(x)^2*(x-xfix) + d(x,v)^2*v = F",
+        f"c(x) = {GAIN_SCALE:g} * (Wc1 s(Wc0 (x-xfix)/{POSITION_SCALE_M:g} + bc0) + bc1), {NN_HIDDEN} units",
+        f"d(x,v) = {GAIN_SCALE:g} * (Wd1 s(Wd0 [(x-xfix)/{POSITION_SCALE_M:g}, v/{VELOCITY_SCALE_M_S:g}] + bd0) + bd1), "
+        f"{NN_HIDDEN} units",
+        "s(z) = z / sqrt(1 + z^2)")
+
+    def stiffness(self, x, p):
+        """c(x)^2."""
+        c = GAIN_SCALE * _mlp((x - p["xfix"]) / POSITION_SCALE_M, p["cw0"], p["cb0"], p["cw1"], p["cb1"])
+        return c**2
+
+    def damping(self, x, v, p):
+        """d(x, v)^2."""
+        d = GAIN_SCALE * _mlp(ca.vertcat((x - p["xfix"]) / POSITION_SCALE_M, v / VELOCITY_SCALE_M_S),
+                              p["dw0"], p["db0"], p["dw1"], p["db1"])
+        return d**2
+
+    def spring(self, x, p):
+        return self.stiffness(x, p) * (x - p["xfix"])
+
+    def damper(self, x, v, p):
+        return self.damping(x, v, p) * v
+
+    def linearisation(self, x, v, w):
+        """Secant stiffness and damping, c(x)^2 and d(x, v)^2."""
+        p = self.unflatten(w)
+        return p["m"], self.stiffness(x, p), self.damping(x, v, p)
+
+    def weights_from_z(self, z):
+        mass, xfix = MIN_MASS_KG + 100.0 * z[0] ** 2, MID_TRAVEL_M + 0.1 * z[1]
+        return ca.vertcat(mass, xfix, z[2:]) if _is_symbolic(z) else np.concatenate([[mass, xfix], z[2:]])
+
+    def z_from_weights(self, w):
+        w = np.asarray(w, dtype=float)
+        return np.concatenate([[_mass_z(w[0]), (w[1] - MID_TRAVEL_M) / 0.1], w[2:]])
+
+    def initial_weights(self, seed: int) -> np.ndarray:
+        """200 kg, 1 kN/m spring and 10 kN s/m damper at mid-travel, with small seeded network weights."""
+        rng = np.random.default_rng(seed)
+        params = {k: rng.normal(0.0, 1.0, shape) for k, shape in self.shapes.items()}
+        params.update(m=200.0, xfix=MID_TRAVEL_M, cb1=np.sqrt(1e3) / GAIN_SCALE, db1=np.sqrt(1e4) / GAIN_SCALE)
+        params.update(cw1=0.01 * params["cw1"], dw1=0.01 * params["dw1"])
+        return self.flatten(params)
+
+
+class CausalRail(Representation):
+    """F = CAUSAL_MASS_KG*a + g(x, v, a), g a one-hidden-layer network; a solved from F by Newton."""
+
+    name = "causal"
+    acausal = False
+    shapes = {"w0": (CAUSAL_HIDDEN, 3), "b0": (CAUSAL_HIDDEN, 1), "w1": (1, CAUSAL_HIDDEN), "b1": ()}
+    equations = (f"F = {CAUSAL_MASS_KG:g}*a + {FORCE_SCALE_N:g} * (W1 s(W0 [(x-{MID_TRAVEL_M:g})/{POSITION_SCALE_M:g}, "
+                 f"v/{VELOCITY_SCALE_M_S:g}, a/{ACCELERATION_SCALE_M_S2:g}] + b0) + b1), {CAUSAL_HIDDEN} units",
+                 "s(z) = z / sqrt(1 + z^2)", "a solved from F by Newton's method")
+    input_scales = (POSITION_SCALE_M, VELOCITY_SCALE_M_S, ACCELERATION_SCALE_M_S2)
+
+    def network(self, x, v, a, w):
+        """g(x, v, a) and its slopes dg/dx, dg/dv, dg/da, written out so that one pass of the hidden
+        layer serves the force and every slope (half the operations of differentiating it again)."""
+        p = self.unflatten(w)
+        u = ca.vertcat((x - MID_TRAVEL_M) / POSITION_SCALE_M, v / VELOCITY_SCALE_M_S, a / ACCELERATION_SCALE_M_S2)
+        hidden, slope = sigmoid(ca.mtimes(p["w0"], u) + p["b0"])
+        g = FORCE_SCALE_N * (ca.mtimes(p["w1"], hidden) + p["b1"])
+        weighted = FORCE_SCALE_N * p["w1"].T * slope  # dg / d(each unit's pre-activation)
+        slopes = ca.mtimes(weighted.T, p["w0"])
+        return g, *(slopes[0, k] / scale for k, scale in enumerate(self.input_scales))
+
+    def force(self, x, v, a, w):
+        return CAUSAL_MASS_KG * a + self.network(x, v, a, w)[0]
+
+    @staticmethod
+    def floored_inertia(slope):
+        """dF/da, kept above half the toe's inertia (smoothly), so a is always solvable."""
+        return softplus(slope - CAUSAL_MASS_KG / 2, CAUSAL_MASS_KG / 10) + CAUSAL_MASS_KG / 2
+
+    def acceleration(self, x, v, force, w):
+        """One Newton step from a = 0 (the learned dependence on a is weak)."""
+        g, _, _, dg_da = self.network(x, v, 0.0, w)
+        return -(g - force) / self.floored_inertia(CAUSAL_MASS_KG + dg_da)
+
+    def linearisation(self, x, v, w):
+        """The map's slopes at a = 0, stiffness and damping clipped at zero."""
+        _, dg_dx, dg_dv, dg_da = self.network(x, v, 0.0, w)
+        return self.floored_inertia(CAUSAL_MASS_KG + dg_da), ca.fmax(dg_dx, 0.0), ca.fmax(dg_dv, 0.0)
+
+    def initial_weights(self, seed: int) -> np.ndarray:
+        """Small seeded weights; acceleration enters through the toe's inertia until the data says otherwise."""
+        rng = np.random.default_rng(seed)
+        params = {k: rng.normal(0.0, 1.0 / np.sqrt(shape[-1] if len(shape) == 2 else 1), shape)
+                  for k, shape in self.shapes.items()}
+        params["w1"] = 0.1 * params["w1"]
+        params["w0"][:, 2] = 0.0
+        params["b1"] = np.zeros(())
+        return self.flatten(params)
+
+    def acceleration_input_weights(self) -> np.ndarray:
+        """Flat indices of the first-layer weights that multiply the acceleration input."""
+        probe = self.unflatten(np.zeros(self.size))
+        probe["w0"][:, 2] = 1.0
+        return np.flatnonzero(self.flatten(probe))
+
+
+REPRESENTATIONS: dict[str, Representation] = {r.name: r for r in (PolyRail(), NNRail(), CausalRail())}
+assert tuple(REPRESENTATIONS) == RAIL_MODELS, "one representation per rail model of the contract"

@@ -8,6 +8,9 @@ FaultMode = Literal["left_bolt", "right_bolt", "missing_bearing", "obstacle"]
 Decision = Literal["nominal", FaultMode, "unknown"]
 
 FAULT_MODES: tuple[FaultMode, ...] = get_args(FaultMode)
+
+RailModel = Literal["poly", "nn", "causal"]  # the reduced rail representations a diagnosis can use
+RAIL_MODELS: tuple[RailModel, ...] = get_args(RailModel)
 DECISIONS: tuple[Decision, ...] = get_args(Decision)
 
 

@@ -20,6 +20,7 @@ from schemas.faults import (
     FAULT_PARAMETERS,
     Decision,
     FaultMode,
+    RailModel,
     check_fault_name,
     check_fault_value,
 )
@@ -171,7 +172,7 @@ class Diagnosis(Message):
     direction: Direction
     t_start_ns: TimeNs
     t_end_ns: TimeNs
-    model: Literal["poly", "nn", "causal"]
+    model: RailModel
     decision: Decision
     reason: str | None = None
     hypotheses: list[Hypothesis] = []

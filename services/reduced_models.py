@@ -14,9 +14,10 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 import models.params as shipped
 from models.plant import Plant
 from models.rail_models import REPRESENTATIONS
-from models.reduced import STATES
+from models.reduced import STATES, ReducedSwitch
 from models.reference import DIRECTIONS
 from models.training import TRAIN_SEEDS, train
+from models.validation import quick_validation
 
 
 def train_and_save(name: str, *, seed: int = 0, iterations: int = 40, out_dir: str | None = None) -> tuple[Path, float]:
@@ -37,12 +38,15 @@ def train_and_save(name: str, *, seed: int = 0, iterations: int = 40, out_dir: s
                 tasks[stage] = progress.add_task(stage, total=iterations, cost="")
             progress.update(tasks[stage], completed=iteration, cost=f"{cost:.4g}")
 
-        trained = train(representation, Plant(), seed=seed, iterations=iterations, progress=report)
+        plant = Plant()
+        trained = train(representation, plant, seed=seed, iterations=iterations, progress=report)
     seconds = time.perf_counter() - start
     provenance = {"seed": seed, "series_seeds": list(TRAIN_SEEDS), "series_seconds": 100.0, "sample_rate_hz": 50.0,
                   "iterations": iterations, "stages": trained.stages, "seconds": round(seconds, 1)}
     path = target / f"{name}.json"
-    path.write_text(json.dumps(shipped.weights_document(representation, trained.weights, provenance), indent=1) + "\n")
+    document = shipped.weights_document(representation, trained.weights, provenance)
+    document["validation"] = quick_validation(ReducedSwitch(representation, trained.weights, compiled=True), plant)
+    path.write_text(json.dumps(document, indent=1) + "\n")
     return path, seconds
 
 
@@ -91,6 +95,8 @@ def describe_reduced() -> dict:
                  "form": "acausal" if representation.acausal else "causal"}
         try:
             entry["trained"] = shipped.load(name)[2]
+            entry["bearing_port"] = shipped.bearing_port(name)
+            entry["validation"] = shipped.validation(name)
         except FileNotFoundError:
             entry["trained"] = None
         out[name] = entry

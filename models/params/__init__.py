@@ -33,6 +33,11 @@ def bearing_port(name: str) -> dict[str, dict[str, float]]:
     return {d: {key: float(port.get(d, port)[key]) for key in ("gain", "offset_s_m")} for d in DIRECTIONS}
 
 
+def validation(name: str) -> dict:
+    """The quick validation stored with a model's weights (models/validation.py), empty when never made."""
+    return _document(name).get("validation", {})
+
+
 def load(name: str) -> tuple[Representation, np.ndarray, dict]:
     """Representation, flat weights and training provenance of a shipped model."""
     document = _document(name)
