@@ -23,11 +23,11 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import emit, parser
-from schemas import Diagnosis, MotorSample, ThrowEvent, decode
-from services.bus import BusOptions, open_session
-from services.mcap_io import RecordingWriter, load_recording
-from services.processes import ServiceProcesses, free_loopback_endpoint, wait_for, wait_ready
-from services.simulate import simulate_to_mcap
+from railswitch.schemas import Diagnosis, MotorSample, ThrowEvent, decode
+from railswitch.services.adapters.zenoh_bus import BusOptions, open_session
+from railswitch.services.adapters.recordings import RecordingWriter, load_recording
+from railswitch.services.adapters.processes import ServiceProcesses, free_loopback_endpoint, wait_for, wait_ready
+from railswitch.services.commands.simulate import simulate_to_mcap
 
 RATE_HZ = 50.0
 INTERVAL_S = 30.0

@@ -17,12 +17,12 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import emit, parser, pin_to_one_core
-from models.diagnosis import ThrowVerdict
-from models.plant import Plant
-from models.switch import SwitchSimulation
-from schemas import Diagnosis
-from services.mcap_io import load_recording
-from services.diagnosis import Diagnoser, diagnose_messages, diagnose_simulation
+from railswitch.models.isolation import ThrowVerdict
+from railswitch.models.plant import Plant
+from railswitch.models.switch import SwitchSimulation
+from railswitch.schemas import RAIL_MODELS, Diagnosis
+from railswitch.services.adapters.recordings import load_recording
+from railswitch.services.core.fleet_diagnoser import Diagnoser, diagnose_messages, diagnose_simulation
 
 RECORDINGS = Path(__file__).resolve().parent.parent / "recordings"
 PAPER_SCENARIOS = {  # recording -> (mode, injected parameters), as in recordings/make.sh
@@ -68,7 +68,7 @@ def run_case(diagnoser: Diagnoser, plant: Plant, switch_id: str, faults: dict, n
 
 def main() -> None:
     p = parser(__doc__.splitlines()[0])
-    p.add_argument("--model", choices=["poly", "nn", "causal"], default="poly")
+    p.add_argument("--model", choices=RAIL_MODELS, default="poly")
     p.add_argument("--seed", type=int, default=None, help="matrix seed (default: drawn and printed)")
     p.add_argument("--per-mode", type=int, default=10, help="random cases per fault mode")
     p.add_argument("--nominal", type=int, default=10, help="random nominal cases")

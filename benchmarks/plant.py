@@ -13,9 +13,9 @@ import scipy.sparse as sp
 from scipy.integrate import solve_ivp
 
 from benchmarks.common import emit, parser, pin_to_one_core
-from models.plant import Plant
-from models.reference import THROW_DURATION_S, throw_reference
-from models.switch import SwitchSimulation
+from railswitch.models.plant import Plant
+from railswitch.models.reference import THROW_DURATION_S, throw_reference
+from railswitch.models.switch import SwitchSimulation
 
 SIM_SECONDS = 2 * THROW_DURATION_S
 

@@ -23,15 +23,17 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from benchmarks.common import emit, parser, pin_to_one_core  # noqa: E402
-from models.plant import Plant  # noqa: E402
-from models.rail_models import REPRESENTATIONS  # noqa: E402
-from models.reduced import ReducedSwitch  # noqa: E402
-from models.reference import THROW_DURATION_S, throw_reference  # noqa: E402
-from models.switch import SwitchSimulation  # noqa: E402
-from models.reduced import ReducedParams  # noqa: E402
-from models.training import RATE_HZ, VALIDATION_SEEDS, train  # noqa: E402
-from models.validation import divergence, plant_series, validate  # noqa: E402
-import models.params as shipped  # noqa: E402
+from railswitch.models.plant import Plant  # noqa: E402
+from railswitch.models.rail_models import REPRESENTATIONS  # noqa: E402
+from railswitch.models.reduced import ReducedSwitch  # noqa: E402
+from railswitch.models.reference import THROW_DURATION_S, throw_reference  # noqa: E402
+from railswitch.models.switch import SwitchSimulation  # noqa: E402
+from railswitch.models.reduced import ReducedParams  # noqa: E402
+from railswitch.models.training import RATE_HZ, VALIDATION_SEEDS, train  # noqa: E402
+from railswitch.models.validation import divergence, plant_series, validate  # noqa: E402
+from railswitch.schemas import RAIL_MODELS  # noqa: E402
+from railswitch.services.adapters import model_store  # noqa: E402
+from railswitch.services.adapters.compiled import MachineCode  # noqa: E402
 
 SAMPLES = int(THROW_DURATION_S * RATE_HZ)
 
@@ -80,13 +82,13 @@ STRESS_RATES_HZ = (10.0, 25.0, 50.0, 100.0)
 
 def stress(representation, weights, series: int) -> dict:
     """Divergences of one representation over the stress set and fault extremes, per rate and substeps."""
-    from services.diagnosis import DIAGNOSIS_SUBSTEPS
+    from railswitch.services.core.fleet_diagnoser import DIAGNOSIS_SUBSTEPS
 
     runs, diverged, worst = {}, 0, 0.0
     for rate in STRESS_RATES_HZ:
         for substeps in sorted({1, DIAGNOSIS_SUBSTEPS}):
             reduced = ReducedSwitch(representation, weights, ReducedParams(substeps=substeps), rate_hz=rate,
-                                    compiled=True)
+                                    compiler=MachineCode())
             found = divergence(reduced, series)
             runs[f"{rate:g}Hz/{substeps}"] = len(found.diverged_series) + len(found.diverged_fault_throws)
             diverged += runs[f"{rate:g}Hz/{substeps}"]
@@ -97,7 +99,7 @@ def stress(representation, weights, series: int) -> dict:
 
 def main() -> None:
     p = parser(__doc__)
-    p.add_argument("--models", default="poly,nn,causal")
+    p.add_argument("--models", default=",".join(RAIL_MODELS))
     p.add_argument("--out", default="out/reduced-validation", help="directory for the JSON summary and box plot")
     p.add_argument("--shipped", action="store_true", help="validate the shipped weights instead of retraining")
     p.add_argument("--stress", type=int, default=0, metavar="N",
@@ -114,14 +116,15 @@ def main() -> None:
         representation = REPRESENTATIONS[name]
         start = time.perf_counter()
         if args.shipped:
-            _, weights, provenance = shipped.load(name)
-            train_seconds = provenance["seconds"]
+            stored = model_store.load(name)
+            weights, train_seconds = stored.weights, stored.training["seconds"]
         else:
             weights = train(representation, plant).weights
             train_seconds = time.perf_counter() - start
-        reduced = ReducedSwitch(representation, weights, compiled=True)
+        compiler = MachineCode()
+        reduced = ReducedSwitch(representation, weights, compiler=compiler)
         reduced_seconds = reduced_two_throws_seconds(reduced)
-        mses[name] = validate(ReducedSwitch(representation, weights), series)
+        mses[name] = validate(ReducedSwitch(representation, weights, compiler=compiler), series)
         result[name] = {
             "speedup_vs_plant": round(plant_seconds / reduced_seconds, 1),
             "reduced_wall_seconds": round(reduced_seconds, 5),
@@ -131,7 +134,7 @@ def main() -> None:
             "max_series_position_rmse_m": float(np.sqrt(np.max(mses[name]["position"]))),
             "velocity_rmse_m_s": float(np.sqrt(np.mean(mses[name]["velocity"]))),
             "force_rmse_n": float(np.sqrt(np.mean(mses[name]["force"]))),
-            "compiled": reduced.compiled,
+            "compiled": compiler.machine_code,
         }
         if args.stress:
             result[name]["stress"] = stress(representation, weights, args.stress)

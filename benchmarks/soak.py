@@ -26,11 +26,11 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import emit, parser
-from schemas import Diagnosis, MotorSample, ThrowEvent, decode, parse_key_expr
-from services.bus import BusOptions, Inbox, open_session
-from services.demo import INTERVAL_S, demo_scenario
-from services.mcap_io import RecordingReader
-from services.processes import ServiceProcesses, free_loopback_endpoint, wait_ready
+from railswitch.schemas import Diagnosis, MotorSample, ThrowEvent, decode, parse_key_expr
+from railswitch.services.adapters.zenoh_bus import BusOptions, Inbox, open_session
+from railswitch.services.commands.demo import INTERVAL_S, demo_scenario
+from railswitch.services.adapters.recordings import RecordingReader
+from railswitch.services.adapters.processes import ServiceProcesses, free_loopback_endpoint, wait_ready
 
 NOISE = 0.01
 # 20 switches at 2x: 4 throws/s, 2000 samples/s, about 1.4 of 2 cores, the diagnoser at 3/4 of its one

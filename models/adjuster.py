@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import casadi as ca
 
-from models.smooth import softplus
+from railswitch.models.smooth import softplus
 
 
 @dataclass(frozen=True)

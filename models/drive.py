@@ -4,7 +4,7 @@ The crank's dead centres at both ends of the stroke lock the rod: there the
 rod force produces no torque on the motor, as in a real point machine. The
 rod moves the blades through a lever (bell crank) of `linkage_ratio` rod metres
 per blade metre; the adjuster and its bolts sit on the rod side, so a bolt
-offset of 0.20 m (the top of DESIGN.md's range) still lets the blades move.
+offset of 0.20 m (the top of its range, docs/contracts.md section 2) still lets the blades move.
 """
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """Fault-parameter estimation for one throw (paper, section "Fault diagnosis").
 
 Each hypothesis (nominal, one per fault mode, joint) frees its parameters within
-the ranges of DESIGN.md section 3 and fits the reduced switch model to the
+the ranges of docs/contracts.md section 2 and fits the reduced switch model to the
 throw's measured current, angle and angular velocity, each scaled by its range,
 so the cost is the mean squared error of the three scaled signals. Bounded
 Levenberg-Marquardt on CasADi's exact Jacobian (Gauss-Newton Hessian), a coarse
@@ -20,17 +20,17 @@ end of the previous throw's fit, or the closed position.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import casadi as ca
 import numpy as np
 
-from models.faults import FAULT_ORDER, fault_vector
-from models.reduced import OUTPUTS, ReducedSwitch, jit_compiled_all
-from models.reference import Reference
-from schemas.faults import FAULT_PARAMETERS, MODE_PARAMETERS
-
-MEASURED = ("current_a", "angle_rad", "velocity_rad_s")
+from railswitch.models.faults import FAULT_ORDER, fault_vector
+from railswitch.models.least_squares import levenberg_marquardt
+from railswitch.models.reduced import OUTPUTS, Compiler, ReducedSwitch
+from railswitch.models.reference import Reference
+from railswitch.models.signals import SIGNAL_NAMES as MEASURED
+from railswitch.models.signals import MotorSignals
+from railswitch.schemas.faults import FAULT_PARAMETERS, MODE_PARAMETERS
 # Order-one scales of the parameters for the solver.
 SCALES = {"left_bolt_offset": 0.05, "right_bolt_offset": 0.05, "bearing_friction": 5e3,
           "obstacle_friction": 1e5, "obstacle_position": 0.05}
@@ -88,29 +88,20 @@ class InPlace:
 
 @dataclass(frozen=True)
 class Measurement:
-    """One throw's N samples after its start, its reference and the state it starts from."""
+    """One throw's N samples after its start, its direction and reference, and the state it starts from."""
 
+    direction: str
     reference: Reference
-    current_a: np.ndarray
-    angle_rad: np.ndarray
-    velocity_rad_s: np.ndarray
+    signals: MotorSignals
     start_angle_rad: float
     start_rail_m: float
     # Faults known from earlier throws that this throw cannot show (the other direction's bolt):
     # held at these values in every hypothesis that does not free them.
     background: dict[str, float] = field(default_factory=dict)
 
-    @property
-    def direction(self) -> str:
-        """Which way the reference turns the motor: forward is left to right."""
-        return "left_to_right" if float(np.sum(self.reference.velocity_rad_s)) > 0 else "right_to_left"
-
-    def matrix(self) -> np.ndarray:
-        return np.column_stack([self.current_a, self.angle_rad, self.velocity_rad_s])
-
     def scales(self) -> np.ndarray:
         """Range of each measured signal over the throw (the residual's scale)."""
-        return np.maximum(np.ptp(self.matrix(), axis=0), 1e-6)
+        return np.maximum(np.ptp(self.signals.matrix(), axis=0), 1e-6)
 
 
 @dataclass(frozen=True)
@@ -137,8 +128,8 @@ def _bounds(names) -> tuple[np.ndarray, np.ndarray]:
 class ThrowEstimator:
     """Fits every hypothesis to throws of `samples` samples; build once, call per throw."""
 
-    def __init__(self, reduced: ReducedSwitch, samples: int, compiled: bool = True, cache_dir: Path | None = None):
-        """`cache_dir` keeps the compiled Functions for later processes (see `jit_compiled`)."""
+    def __init__(self, reduced: ReducedSwitch, samples: int, compiler: Compiler | None = None):
+        """`compiler` turns the estimator's Functions into machine code (None: interpreted)."""
         self.reduced = reduced
         self.samples = samples
         theta = ca.MX.sym("theta", len(FAULT_ORDER))
@@ -170,15 +161,14 @@ class ThrowEstimator:
         cost = ca.Function("throw_cost", inputs, [ca.sumsqr(residual)])
         # Every grid start in one call; only theta is mapped, the throw's data is shared.
         functions.append(cost.map("throw_grid", "serial", _GRID_SIZE, list(range(1, len(inputs))), []))
-        self.compiled = False
-        if compiled:
-            functions, self.compiled = jit_compiled_all(functions, cache_dir)
+        if compiler is not None:
+            functions = compiler(functions)
         self._residual, *linearised, self._grid = [InPlace(f) for f in functions]
         self._linearised = dict(zip(LINEARISED_DIRECTIONS, linearised))
 
     def _data(self, m: Measurement) -> tuple:
         s0 = self.reduced.initial_state(m.start_rail_m, m.start_angle_rad)
-        return s0, self.reduced.reference_columns(m.reference, self.samples), m.matrix(), 1.0 / m.scales()[None, :]
+        return s0, self.reduced.reference_columns(m.reference, self.samples), m.signals.matrix(), 1.0 / m.scales()[None, :]
 
     def _residuals(self, theta: np.ndarray, data: tuple) -> np.ndarray:
         return self._residual(theta, *data)[0].ravel()
@@ -210,46 +200,22 @@ class ThrowEstimator:
         if not free:
             return _estimate(mode, {}, {}, self._residuals(theta, data), 0)
         index = [FAULT_ORDER.index(n) for n in free]
-        scale = np.array([SCALES[n] for n in free])
         low, high = _bounds(free)
-        theta[index] = np.clip(theta[index], low, high)
-        r, j = self._linearise(theta, data, index)
-        cost, damping, k = float(r @ r), 1e-4, 0
-        for k in range(1, iterations + 1):
-            js = j * scale
-            g = js.T @ r
-            # Projected step: a parameter at a bound whose gradient points outwards stays there.
-            active = ((theta[index] <= low) & (g > 0)) | ((theta[index] >= high) & (g < 0))
-            move = ~active
-            if not move.any():
-                break
-            h = js[:, move].T @ js[:, move]
-            accepted = False
-            for attempt in range(12):
-                step = np.zeros(len(free))
-                step[move] = np.linalg.solve(h + damping * np.diag(np.diag(h) + 1e-12), -g[move])
-                trial = theta.copy()
-                trial[index] = np.clip(theta[index] + step * scale, low, high)
-                if attempt:  # after a failed step: give up once the damped step promises no visible decrease
-                    taken = ((trial[index] - theta[index]) / scale)[move]  # parameters held at a bound do not move
-                    if -(2.0 * g[move] @ taken + taken @ h @ taken) < TOLERANCE * cost:
-                        break
-                trial_cost = self._cost(trial, data)
-                if trial_cost < cost:
-                    accepted = True
-                    break
-                damping *= 10
-            if not accepted:
-                break
-            decrease = (cost - trial_cost) / max(cost, 1e-300)
-            theta = trial
-            r, j = self._linearise(theta, data, index)
-            cost, damping = float(r @ r), max(damping / 10, 1e-9)
-            if decrease < TOLERANCE or np.max(np.abs(step)) < 1e-6:
-                break
-            if cost * (1.0 - decrease) ** (iterations - k) > rival:
-                break
-        return _estimate(mode, {n: float(theta[i]) for n, i in zip(free, index)}, self._std(j, cost, free), r, k)
+
+        def at(values: np.ndarray) -> np.ndarray:
+            full = theta.copy()
+            full[index] = values
+            return full
+
+        def keep_going(cost: float, decrease: float, k: int) -> bool:  # can it still beat the rival?
+            return cost * (1.0 - decrease) ** (iterations - k) <= rival
+
+        solution = levenberg_marquardt(lambda z: self._linearise(at(z), data, index), theta[index],
+                                       cost=lambda z: self._cost(at(z), data), lower=low, upper=high,
+                                       scale=np.array([SCALES[n] for n in free]), iterations=iterations,
+                                       tolerance=TOLERANCE, keep_going=keep_going)
+        return _estimate(mode, {n: float(v) for n, v in zip(free, solution.z)},
+                         self._std(solution.jacobian, solution.cost, free), solution.residual, solution.iterations)
 
     def _std(self, jacobian: np.ndarray, cost: float, free: list[str]) -> dict[str, float]:
         """Gauss-Newton covariance: residual variance times (J'J)^-1; no information means the range."""
@@ -277,7 +243,7 @@ class ThrowEstimator:
             best[mode], lowest[mode] = mode_points[k], costs[first + k]
             first += len(mode_points)
         for mode, point in list(best.items()):  # halve the step around the best point
-            for name in set(point) & set(GRID_STEP):
+            for name in [name for name in GRID_STEP if name in point]:
                 for value in (point[name] - GRID_STEP[name] / 2, point[name] + GRID_STEP[name] / 2):
                     if FAULT_PARAMETERS[name].low <= value <= FAULT_PARAMETERS[name].high:
                         neighbour = {**point, name: value}

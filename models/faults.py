@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from schemas.faults import FAULT_PARAMETERS
+from railswitch.schemas.faults import FAULT_PARAMETERS
 
 FAULT_ORDER: tuple[str, ...] = tuple(FAULT_PARAMETERS)
 

@@ -15,9 +15,9 @@ from dataclasses import dataclass
 
 import casadi as ca
 
-from models.adjuster import AdjusterParams
-from models.drive import DriveParams
-from models.smooth import smooth_step, softplus
+from railswitch.models.adjuster import AdjusterParams
+from railswitch.models.drive import DriveParams
+from railswitch.models.smooth import smooth_step, softplus
 
 
 @dataclass(frozen=True)

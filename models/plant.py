@@ -13,13 +13,13 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
-from models.adjuster import AdjusterParams, adjuster_energy, adjuster_force
-from models.drive import DriveParams, adjuster_on_rod, rod_kinematics
-from models.lock import LockParams, latched_hooks, lock_terms
-from models.faults import FAULT_ORDER, ObstacleParams, bearing_weights, fault_vector, obstacle_profile, unpack
-from models.motor import ControllerParams, MotorParams, controller, motor_derivatives
-from models.rail_beam import RailBeam, RailParams
-from models.reference import Reference
+from railswitch.models.adjuster import AdjusterParams, adjuster_energy, adjuster_force
+from railswitch.models.drive import DriveParams, adjuster_on_rod, rod_kinematics
+from railswitch.models.lock import LockParams, latched_hooks, lock_terms
+from railswitch.models.faults import FAULT_ORDER, ObstacleParams, bearing_weights, fault_vector, obstacle_profile, unpack
+from railswitch.models.motor import ControllerParams, MotorParams, controller, motor_derivatives
+from railswitch.models.rail_beam import RailBeam, RailParams
+from railswitch.models.reference import Reference
 
 SIGNALS = ("current_a", "angle_rad", "velocity_rad_s", "rail_position_m", "rail_velocity_m_s",
            "rail_acceleration_m_s2", "drive_force_n", "rod_position_m")

@@ -28,8 +28,8 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from models.smooth import softplus
-from schemas.faults import RAIL_MODELS
+from railswitch.models.smooth import softplus
+from railswitch.schemas.faults import RAIL_MODELS
 
 # Typical magnitudes used to scale network inputs and outputs to order one.
 POSITION_SCALE_M = 0.1

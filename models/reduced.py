@@ -18,31 +18,24 @@ the rollout diverged). The exact relaxation keeps every level in [0, 1].
 """
 from __future__ import annotations
 
-import hashlib
 import math
-import os
-import platform
-import shutil
-import subprocess
-import tempfile
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
-from pathlib import Path
 
 import casadi as ca
 import numpy as np
 
-from models.adjuster import adjuster_force, smooth_contact
-from models.drive import adjuster_on_rod, rod_kinematics
-from models.integrators import relax, ros2
-from models.faults import FAULT_ORDER, fault_vector, obstacle_profile, unpack
-from models.lock import LockTerms, latched_hooks, lock_terms
-from models.motor import controller, motor_derivatives
-from models.plant import PlantParams
-from models.rail_models import Representation
-from models.reference import Reference
-from models.smooth import smooth_clip
+from railswitch.models.adjuster import adjuster_force, smooth_contact
+from railswitch.models.drive import adjuster_on_rod, rod_kinematics
+from railswitch.models.integrators import relax, ros2
+from railswitch.models.faults import FAULT_ORDER, fault_vector, obstacle_profile, unpack
+from railswitch.models.lock import LockTerms, latched_hooks, lock_terms
+from railswitch.models.motor import controller, motor_derivatives
+from railswitch.models.plant import PlantParams
+from railswitch.models.rail_models import Representation
+from railswitch.models.reference import DIRECTIONS, Reference
+from railswitch.models.smooth import smooth_clip
 
 STATES = ("angle_rad", "velocity_rad_s", "integral_v", "current_a", "rail_position_m", "rail_velocity_m_s",
           "hook_left", "hook_right")
@@ -72,13 +65,22 @@ class ReducedParams:
     # The bearing fault's port: drive-point damping = gain * bearing_friction + offset (N·s/m), one
     # (gain, offset) while the blades move left to right and one while they move right to left, blended
     # by the sign of their velocity over `port_velocity_m_s`. The plant spreads bearing friction along
-    # flexible rails; calibrated per representation (models/params/*.json).
-    bearing_port: tuple[tuple[float, float], tuple[float, float]] = ((1.0, 0.0), (1.0, 0.0))
+    # flexible rails; calibrated per representation (`railswitch calibrate`, stored with the model's weights).
+    bearing_port: tuple[tuple[float, float], tuple[float, float]] = ((1.0, 0.0), (1.0, 0.0))  # (gain, offset) in DIRECTIONS order
     port_velocity_m_s: float = 0.002
 
     def steps_per_sample(self, rate_hz: float) -> int:
         """`substeps`, or more so that no step is longer than `max_step_s`."""
         return max(self.substeps, math.ceil(1.0 / (rate_hz * self.max_step_s) - 1e-9))
+
+
+BearingPort = dict[str, dict[str, float]]  # per direction of motion: {"gain": ..., "offset_s_m": ...}
+NEUTRAL_PORT: BearingPort = {direction: {"gain": 1.0, "offset_s_m": 0.0} for direction in DIRECTIONS}
+
+
+def port_pairs(port: BearingPort) -> tuple[tuple[float, float], tuple[float, float]]:
+    """A bearing port as ReducedParams holds it: (gain, offset) per direction, in DIRECTIONS order."""
+    return tuple((port[d]["gain"], port[d]["offset_s_m"]) for d in DIRECTIONS)
 
 
 def stock_rail_force(params: ReducedParams, x, v):
@@ -91,87 +93,16 @@ def stock_rail_force(params: ReducedParams, x, v):
     return left - right
 
 
-CACHE_FLAGS = ("-O2", "-shared", "-fPIC")  # flags of the cached shared libraries (part of their key)
-
-
-def jit_compiled(function: ca.Function, cache_dir: Path | None = None) -> tuple[ca.Function, bool]:
-    """The same Function compiled to machine code (needs a C compiler), else itself.
-
-    With `cache_dir`, the machine code is kept there and later calls, in any process, load it instead
-    of compiling again; without one, or when the cache fails, CasADi's JIT compiles it for this process.
-    """
-    (compiled,), ok = jit_compiled_all([function], cache_dir)
-    return compiled, ok
-
-
-def jit_compiled_all(functions: list[ca.Function], cache_dir: Path | None = None) -> tuple[list[ca.Function], bool]:
-    """`jit_compiled` for several Functions, the cache's missing libraries compiled in parallel
-    (one C compiler per core); True when every one is machine code."""
-    if cache_dir is not None:
-        try:
-            return cached_externals(functions, Path(cache_dir)), True
-        except (OSError, RuntimeError, subprocess.SubprocessError):
-            pass  # no compiler, or the cache is not writable: compiled for this process only
-    compiled = [_process_jit(function) for function in functions]
-    return [f for f, _ in compiled], all(ok for _, ok in compiled)
-
-
-def _process_jit(function: ca.Function) -> tuple[ca.Function, bool]:
-    """CasADi's own JIT, for this process only; the Function itself when that fails."""
-    try:
-        symbols = function.mx_in()
-        scratch = tempfile.gettempdir()  # CasADi's intermediate files stay out of the user's directory
-        compiled = ca.Function(function.name() + "_jit", symbols, function.call(symbols),
-                               function.name_in(), function.name_out(),
-                               {"jit": True, "compiler": "shell", "jit_name": "railswitch_jit",
-                                "jit_options": {"flags": ["-O2"], "verbose": False,
-                                                "directory": scratch + os.sep}})
-        compiled(*[np.zeros(function.size_in(i)) for i in range(function.n_in())])
-        return compiled, True
-    except RuntimeError:
-        return function, False
-
-
-def cached_externals(functions: list[ca.Function], cache_dir: Path) -> list[ca.Function]:
-    """Each function from `<cache_dir>/<key>.so`, compiled from its generated C code first if not there yet.
-
-    The key hashes the C source, CasADi's version, the machine and CACHE_FLAGS, so a changed model,
-    CasADi or flag set gets its own library. A library is compiled under a temporary name and renamed
-    into place (atomic), so processes compiling the same one at once never load a partial file. The C
-    code is generated here, one function after the other; only the compilers run in parallel.
-    """
-    libraries, missing = [], {}
-    for function in functions:
-        generator = ca.CodeGenerator("railswitch_cache.c", {"with_header": False})
-        generator.add(function)
-        source = generator.dump()
-        key = hashlib.sha256("\n".join([ca.__version__, platform.machine(), *CACHE_FLAGS, source]).encode()).hexdigest()
-        libraries.append(cache_dir / f"{key[:32]}.so")
-        if not libraries[-1].exists():
-            missing[libraries[-1]] = source
-    if missing:
-        compiler = shutil.which("gcc") or shutil.which("cc")
-        if compiler is None:
-            raise FileNotFoundError("no C compiler (gcc or cc) on PATH")
-        with ThreadPoolExecutor(max_workers=min(len(missing), os.cpu_count() or 1)) as pool:
-            for done in [pool.submit(_compile, compiler, source, library) for library, source in missing.items()]:
-                done.result()  # raises the first failure
-    return [ca.external(function.name(), str(library)) for function, library in zip(functions, libraries)]
-
-
-def _compile(compiler: str, source: str, library: Path) -> None:
-    with tempfile.TemporaryDirectory(dir=library.parent) as scratch:  # same file system: the rename is atomic
-        c_file, partial = Path(scratch) / "railswitch_cache.c", Path(scratch) / "library.so"
-        c_file.write_text(source)
-        subprocess.run([compiler, *CACHE_FLAGS, str(c_file), "-o", str(partial)], check=True, capture_output=True)
-        os.replace(partial, library)
+Compiler = Callable[[list[ca.Function]], list[ca.Function]]
+"""Turns Functions into equivalent ones (for instance machine code); the edge that owns compilers and caches
+gives one to the models (services/adapters/compiled.py). None keeps CasADi's interpreted evaluation."""
 
 
 class ReducedSwitch:
     """Reduced switch with one rail representation; Functions built once, reused for every throw."""
 
     def __init__(self, representation: Representation, weights: np.ndarray, params: ReducedParams = ReducedParams(),
-                 rate_hz: float = 50.0, compiled: bool = False):
+                 rate_hz: float = 50.0, compiler: Compiler | None = None):
         self.representation = representation
         self.weights = np.asarray(weights, dtype=float)
         self.params = params
@@ -181,7 +112,7 @@ class ReducedSwitch:
         self._lock_params = replace(params.plant.lock, stiffness_n_m=params.lock_stiffness_n_m,
                              latch_rate_1_s=params.latch_rate_1_s or params.plant.lock.latch_rate_1_s)
         self.step = self._build_step()
-        self.compiled = compiled  # rollouts compiled to machine code when a C compiler is there
+        self.compiler = compiler
 
     def _lock(self, s, theta) -> LockTerms:
         """The end-position lock at state `s` (rod from the motor angle, blades at the drive point)."""
@@ -272,9 +203,7 @@ class ReducedSwitch:
     def rollout(self, samples: int) -> ca.Function:
         """(s0, refs 2xN, fault, w) -> outputs 6xN at the N sample times after the start."""
         function = self._rollout(samples)
-        if self.compiled:
-            function, self.compiled = jit_compiled(function)
-        return function
+        return function if self.compiler is None else self.compiler([function])[0]
 
     def _rollout(self, samples: int) -> ca.Function:
         acc = self.step.mapaccum("rollout_acc", samples)

@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models.drive import DriveParams
+from railswitch.models.drive import DriveParams
 
 THROW_DURATION_S = 7.0
 DIRECTIONS = ("left_to_right", "right_to_left")

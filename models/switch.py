@@ -9,10 +9,10 @@ from functools import lru_cache
 
 import numpy as np
 
-from models.plant import Plant
-from models.reference import DIRECTIONS, THROW_DURATION_S, Reference, throw_reference
+from railswitch.models.plant import Plant
+from railswitch.models.reference import DIRECTIONS, THROW_DURATION_S, Reference, throw_reference
+from railswitch.models.signals import SIGNAL_NAMES, MotorSignals
 
-MEASURED = ("current_a", "angle_rad", "velocity_rad_s")
 SETTLE_S = 1.0  # unpowered settling before the first sample, from the closed left position
 
 
@@ -21,13 +21,11 @@ class Samples:
     """Measured motor signals at consecutive sample indices (index * 1/rate seconds from start)."""
 
     first_index: int
-    current_a: np.ndarray
-    angle_rad: np.ndarray
-    velocity_rad_s: np.ndarray
+    signals: MotorSignals
     rail_position_m: np.ndarray  # not measured by the point machine; kept for tests and plots
 
     def __len__(self) -> int:
-        return len(self.current_a)
+        return len(self.signals)
 
 
 @dataclass(frozen=True)
@@ -55,7 +53,7 @@ def nominal_peaks(plant: Plant, rate_hz: float = 50.0) -> dict[str, float]:
     """Peak magnitude of each measured signal over a nominal left-right-left pair of throws."""
     switch = SwitchSimulation(plant, rate_hz=rate_hz)
     throws = [switch.throw() for _ in range(2)]
-    return {name: float(max(np.abs(getattr(t.samples, name)).max() for t in throws)) for name in MEASURED}
+    return {name: float(max(np.abs(getattr(t.samples.signals, name)).max() for t in throws)) for name in SIGNAL_NAMES}
 
 
 class SwitchSimulation:
@@ -81,17 +79,17 @@ class SwitchSimulation:
 
     def _samples(self, trajectory, first_index: int) -> Samples:
         measured = {}
-        for name in MEASURED:
+        for name in SIGNAL_NAMES:
             values = trajectory[name]
             if name in self._noise_std:
                 values = values + self._rng.normal(0.0, self._noise_std[name], size=values.shape)
             measured[name] = values
-        return Samples(first_index, rail_position_m=trajectory["rail_position_m"], **measured)
+        return Samples(first_index, MotorSignals(**measured), trajectory["rail_position_m"])
 
     def initial_sample(self) -> Samples:
         """The sample at index 0, before anything moves."""
         signals = self.plant.signals_at(self.state, self.faults)
-        trajectory = {name: np.array([signals[name]]) for name in (*MEASURED, "rail_position_m")}
+        trajectory = {name: np.array([signals[name]]) for name in (*SIGNAL_NAMES, "rail_position_m")}
         return self._samples(trajectory, 0)
 
     def next_direction(self) -> str:
@@ -128,9 +126,7 @@ class RecordedThrow:
 
     direction: str
     reference: Reference
-    current_a: np.ndarray
-    angle_rad: np.ndarray
-    velocity_rad_s: np.ndarray
+    signals: MotorSignals
 
 
 class ReplayedSwitch:
@@ -156,9 +152,9 @@ class ReplayedSwitch:
         self.faults = dict(faults)
 
     def _hold(self, first_index: int, count: int) -> Samples:
-        last = self._last
-        values = {name: np.full(count, getattr(last, name)[-1]) for name in MEASURED}
-        return Samples(first_index, rail_position_m=np.full(count, np.nan), **values)
+        last = self._last.signals[-1:]
+        values = MotorSignals(*(np.repeat(getattr(last, name), count) for name in SIGNAL_NAMES))
+        return Samples(first_index, values, np.full(count, np.nan))
 
     def initial_sample(self) -> Samples:
         return self._hold(0, 1)
@@ -171,8 +167,7 @@ class ReplayedSwitch:
         recorded = self._throws[direction]
         chosen = recorded[(self._first + self.throw_count // 2) % len(recorded)]
         start = self.sample_index
-        samples = Samples(start + 1, chosen.current_a, chosen.angle_rad, chosen.velocity_rad_s,
-                          np.full(len(chosen.current_a), np.nan))
+        samples = Samples(start + 1, chosen.signals, np.full(len(chosen.signals), np.nan))
         throw = Throw(self.throw_count, direction, chosen.reference, start, samples)
         self._last = chosen
         self.sample_index = throw.end_index

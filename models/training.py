@@ -4,7 +4,7 @@ Data (paper, section "Hybrid rail switch model"): the plant's motor follows rand
 references that push the blades back and forth; we record force, position,
 velocity and acceleration at the adjuster-rail connection every 0.02 s.
 
-Fits use CasADi's automatic differentiation and Levenberg-Marquardt, with bounds
+Fits use CasADi's automatic differentiation and Levenberg-Marquardt (models/least_squares.py), with bounds
 (non-negative coefficients, a floor on the mass) built into the parametrisation:
 - acausal forms: multiple shooting, each 1 s segment simulated (ROS2) from its
   measured start under the measured force, positions and velocities compared;
@@ -19,12 +19,13 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from models.faults import fault_vector
-from models.integrators import ros2
-from models.plant import Plant
-from models.rail_models import FORCE_SCALE_N, CausalRail, NNRail, Representation
-from models.reduced import ReducedParams, stock_rail_force
-from models.reference import Reference
+from railswitch.models.faults import fault_vector
+from railswitch.models.integrators import ros2
+from railswitch.models.least_squares import levenberg_marquardt
+from railswitch.models.plant import Plant
+from railswitch.models.rail_models import FORCE_SCALE_N, CausalRail, NNRail, Representation
+from railswitch.models.reduced import ReducedParams, stock_rail_force
+from railswitch.models.reference import Reference
 
 RATE_HZ = 50.0
 SEGMENT_SAMPLES = 50
@@ -94,7 +95,7 @@ def rail_experiment(plant: Plant, seed: int, duration_s: float = 100.0) -> RailD
 
 def nominal_throw_data(plant: Plant, throws: int = 2) -> RailData:
     """The connection's signals over nominal throws (left to right first), as in normal service."""
-    from models.reference import DIRECTIONS, throw_reference
+    from railswitch.models.reference import DIRECTIONS, throw_reference
 
     state = settled_state(plant)
     parts = []
@@ -113,52 +114,8 @@ def training_data(plant: Plant, series_seeds=None) -> list[RailData]:
     return [rail_experiment(plant, s) for s in seeds] + [nominal_throw_data(plant)]
 
 
-# -- Levenberg-Marquardt on CasADi residuals (bounds live in the parametrisations below) ------------
-@dataclass
-class FitResult:
-    z: np.ndarray
-    cost: float
-    iterations: int
-    history: list[float]
-
-
-def levenberg_marquardt(residual_jacobian: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], z0: np.ndarray,
-                        iterations: int = 50, progress: Callable[[int, float], None] | None = None,
-                        tolerance: float = 1e-6) -> FitResult:
-    """Minimise 0.5*|r(z)|^2 with Marquardt's scaling; z unconstrained (bounds live in the parametrisation)."""
-    z = np.asarray(z0, dtype=float).copy()
-    r, jac = residual_jacobian(z)
-    cost = 0.5 * float(r @ r)
-    if not np.isfinite(cost):
-        raise ValueError("the starting point gives a non-finite residual; start closer")
-    damping = 1e-3
-    history = [cost]
-    for k in range(iterations):
-        gradient = jac.T @ r
-        hessian = jac.T @ jac
-        scale = np.maximum(np.diag(hessian), 1e-12)
-        improved = False
-        for _ in range(12):
-            step = np.linalg.solve(hessian + damping * np.diag(scale), -gradient)
-            r_new, jac_new = residual_jacobian(z + step)
-            cost_new = 0.5 * float(r_new @ r_new)
-            if np.isfinite(cost_new) and cost_new < cost:
-                improved = True
-                relative = (cost - cost_new) / max(cost, 1e-30)
-                z, r, jac, cost = z + step, r_new, jac_new, cost_new
-                damping = max(damping / 3.0, 1e-9)
-                break
-            damping *= 8.0
-        history.append(cost)
-        if progress is not None:
-            progress(k + 1, cost)
-        if not improved or relative < tolerance:
-            break
-    return FitResult(z, cost, len(history) - 1, history)
-
-
 def _numeric(residual_and_jacobian: ca.Function) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:
-    """Wrap a CasADi (residual, Jacobian) Function for levenberg_marquardt."""
+    """Wrap a CasADi (residual, Jacobian) Function for the least-squares solver."""
     def evaluate(z: np.ndarray):
         r, j = residual_and_jacobian(z)
         return np.asarray(r).ravel(), np.asarray(j)
@@ -303,7 +260,7 @@ Progress = Callable[[str, int, float], None]
 
 def nominal_switch_targets(plant: Plant, reduced, throws: int = 2) -> list[SwitchTarget]:
     """The plant's nominal throws as targets for the full reduced switch model."""
-    from models.switch import SwitchSimulation
+    from railswitch.models.switch import SwitchSimulation
 
     sim = SwitchSimulation(plant, rate_hz=RATE_HZ)
     targets = []
@@ -313,7 +270,7 @@ def nominal_switch_targets(plant: Plant, reduced, throws: int = 2) -> list[Switc
         s0 = reduced.initial_state(start["rail_position_m"], start["angle_rad"], start["velocity_rad_s"],
                                    start["current_a"])
         velocity = np.gradient(throw.samples.rail_position_m, 1.0 / RATE_HZ)
-        targets.append(SwitchTarget(s0, throw.reference, throw.samples.current_a, throw.samples.rail_position_m,
+        targets.append(SwitchTarget(s0, throw.reference, throw.samples.signals.current_a, throw.samples.rail_position_m,
                                     velocity))
     return targets
 
@@ -326,16 +283,20 @@ def random_switch_target(plant: Plant, reduced, seed: int, duration_s: float = 3
                         trajectory["rail_velocity_m_s"])
 
 
+FIT_TOLERANCE = 1e-6  # relative decrease of the training cost below which a stage has converged
+
+
 def _fit(stage: str, fn: Callable, z0: np.ndarray, iterations: int, progress: Progress | None) -> tuple[np.ndarray, dict]:
-    result = levenberg_marquardt(fn, z0, iterations, None if progress is None else
-                                 (lambda k, cost: progress(stage, k, cost)))
+    """One training stage: Levenberg-Marquardt, unbounded (bounds live in the parametrisations)."""
+    result = levenberg_marquardt(fn, z0, iterations=iterations, tolerance=FIT_TOLERANCE,
+                                 progress=None if progress is None else (lambda k, cost: progress(stage, k, cost)))
     return result.z, {"iterations": result.iterations, "cost_start": result.history[0], "cost_end": result.cost}
 
 
 def train(representation: Representation, plant: Plant, *, seed: int = 0, series_seeds=TRAIN_SEEDS,
           iterations: int = 40, progress: Progress | None = None) -> Trained:
     """Fit one representation to plant data, deterministically for a seed."""
-    from models.reduced import ReducedSwitch
+    from railswitch.models.reduced import ReducedSwitch
 
     data = training_data(plant, series_seeds)
     w0 = representation.initial_weights(seed)

@@ -13,11 +13,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models.plant import Plant, Trajectory
-from models.reduced import ReducedSwitch
-from models.reference import DIRECTIONS, THROW_DURATION_S, Reference, throw_reference
-from models.training import random_push_run, stress_reference
-from schemas.faults import FAULT_PARAMETERS
+from railswitch.models.plant import Plant, Trajectory
+from railswitch.models.reduced import ReducedSwitch
+from railswitch.models.reference import DIRECTIONS, THROW_DURATION_S, Reference, throw_reference
+from railswitch.models.training import random_push_run, stress_reference
+from railswitch.schemas.faults import FAULT_PARAMETERS
 
 DIVERGED_BEYOND_M = 0.03  # past a stock rail by more than this is no motion the switch can make
 STRESS_SECONDS = 30.0

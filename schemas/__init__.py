@@ -1,6 +1,6 @@
 """The contract between models/ and services/: fault parameters and message payloads."""
 
-from schemas.faults import (
+from railswitch.schemas.faults import (
     DECISIONS,
     FAULT_MODES,
     FAULT_PARAMETERS,
@@ -12,8 +12,10 @@ from schemas.faults import (
     check_fault_name,
     check_fault_value,
 )
-from schemas.messages import (
+from railswitch.schemas.messages import (
     CHANNEL_MODELS,
+    DEFAULT_ENDPOINT,
+    SERVICE_PREFIX,
     Diagnosis,
     FaultCommand,
     FaultTruth,
@@ -33,6 +35,8 @@ from schemas.messages import (
 
 __all__ = [
     "CHANNEL_MODELS",
+    "DEFAULT_ENDPOINT",
+    "SERVICE_PREFIX",
     "DECISIONS",
     "FAULT_MODES",
     "FAULT_PARAMETERS",

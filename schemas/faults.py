@@ -1,4 +1,4 @@
-"""The fault modes and parameters of DESIGN.md section 3, as data shared by every part."""
+"""The fault modes and parameters of docs/contracts.md section 2, as data shared by every part."""
 
 import math
 from dataclasses import dataclass

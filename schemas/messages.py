@@ -1,4 +1,4 @@
-"""Pydantic models of every payload on the bus and every MCAP channel (DESIGN.md 4, 5)."""
+"""Pydantic models of every payload on the bus and every MCAP channel (docs/contracts.md sections 3 and 4)."""
 
 import json
 import re
@@ -15,7 +15,7 @@ from pydantic import (
     model_validator,
 )
 
-from schemas.faults import (
+from railswitch.schemas.faults import (
     FAULT_MODES,
     FAULT_PARAMETERS,
     Decision,
@@ -120,7 +120,7 @@ class FaultTruth(Message):
     @field_validator(*FAULT_PARAMETERS)
     @classmethod
     def _check_range(cls, value: float | None, info: ValidationInfo) -> float | None:
-        """Every value set lies in the range of DESIGN.md section 3."""
+        """Every value set lies in the range of docs/contracts.md section 2."""
         return None if value is None else check_fault_value(str(info.field_name), value)
 
     def params(self) -> dict[str, float]:
@@ -210,6 +210,8 @@ CHANNEL_MODELS: dict[str, type[Message]] = {
 }
 
 KEY_PREFIX = "railswitch"
+SERVICE_PREFIX = f"{KEY_PREFIX}/service"  # liveliness tokens and status of the services
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"  # where a service looks for its router unless told otherwise
 
 
 def key_expr(switch_id: str, kind: str) -> str:

@@ -30,8 +30,8 @@ from typing import Annotated, Self
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from schemas.faults import FAULT_PARAMETERS, check_fault_value
-from schemas.messages import SwitchId, _check_fault_names, _check_fault_values
+from railswitch.schemas.faults import FAULT_PARAMETERS, check_fault_value
+from railswitch.schemas.messages import SwitchId, _check_fault_names, _check_fault_values
 
 THROW_S = 7.0  # a throw's duration (models/reference.py THROW_DURATION_S); an interval must exceed it
 FaultValues = Annotated[dict[str, float], AfterValidator(_check_fault_values)]

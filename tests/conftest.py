@@ -1,6 +1,29 @@
+"""Test levels by folder: tests/unit (pure, seconds), tests/integration (real files, compilers, a real router,
+subprocesses of the command line), tests/e2e (whole services as processes: live runs, crashes, restarts).
+`python -m pytest tests/unit -q` is the quick check; the README's command runs everything."""
+from pathlib import Path
+
 import pytest
 
-from models.plant import Plant
+from railswitch.models.plant import Plant
+
+LEVELS = ("unit", "integration", "e2e")
+
+
+def pytest_collection_modifyitems(items):
+    for item in items:
+        level = next((part for part in Path(item.fspath).parts if part in LEVELS), None)
+        if level is not None:
+            item.add_marker(getattr(pytest.mark, level))
+
+
+@pytest.fixture(autouse=True, scope="session")
+def shipped_models_only(tmp_path_factory):
+    """Models a developer trained into their own model directory must not change what the tests see."""
+    patch = pytest.MonkeyPatch()
+    patch.setenv("RAILSWITCH_MODELS", str(tmp_path_factory.mktemp("user-models")))
+    yield
+    patch.undo()
 
 
 @pytest.fixture(scope="session")

@@ -8,13 +8,25 @@ from pathlib import Path
 
 import zenoh
 
-from schemas import Diagnosis, decode
-from services.bus import BusOptions, open_session
-from services.processes import ServiceProcesses, free_loopback_endpoint, wait_for, wait_ready
+from railswitch.schemas import Diagnosis, MotorSample, ThrowEvent, decode
+from railswitch.services.adapters.zenoh_bus import BusOptions, open_session
+from railswitch.services.adapters.processes import ServiceProcesses, free_loopback_endpoint, wait_for, wait_ready
 
 ROOT = Path(__file__).resolve().parents[1]
-__all__ = ["ROOT", "DiagnosisCollector", "ServiceProcesses", "client", "jsonl_decisions", "live_bus", "start_router",
-           "wait_for", "wait_ready"]
+__all__ = ["ROOT", "DiagnosisCollector", "ServiceProcesses", "client", "jsonl_decisions", "live_bus", "motor_sample",
+           "start_router", "throw_event", "wait_for", "wait_ready"]
+FLAT_PROFILE = {"reference_t_s": [0.0, 7.0], "reference_velocity_rad_s": [0.0, 0.0]}
+
+
+def motor_sample(seq: int, t_ns: int, switch_id: str = "sw1") -> MotorSample:
+    """A motor sample at rest."""
+    return MotorSample(switch_id=switch_id, seq=seq, t_ns=t_ns, current_a=0.0, angle_rad=0.0, velocity_rad_s=0.0)
+
+
+def throw_event(phase: str, index: int, t_ns: int, switch_id: str = "sw1") -> ThrowEvent:
+    """A left-to-right throw event with a flat reference profile."""
+    return ThrowEvent(switch_id=switch_id, throw_index=index, direction="left_to_right", phase=phase, t_ns=t_ns,
+                      **FLAT_PROFILE)
 
 
 def start_router(services: ServiceProcesses) -> str:

@@ -1,0 +1,119 @@
+"""Machine code for the models' CasADi Functions: compiled once per machine and cached, or once per process.
+
+The models layer builds Functions and takes a `Compiler` (models/reduced.py) that returns equivalent
+ones; this is the one that compiles. The cache lives in $RAILSWITCH_CACHE, else the user's cache
+directory ($XDG_CACHE_HOME or ~/.cache, then railswitch); where that cannot be made, each process
+compiles for itself.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import platform
+import shutil
+import subprocess
+import tempfile
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+
+def default_cache_dir() -> Path | None:
+    """$RAILSWITCH_CACHE, else the user's cache directory; None when it cannot be made."""
+    try:
+        cache_dir = Path(os.environ.get("RAILSWITCH_CACHE")
+                         or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "railswitch")
+        cache_dir.mkdir(parents=True, exist_ok=True)
+        return cache_dir
+    except (OSError, RuntimeError):  # RuntimeError: no home directory
+        return None
+
+
+class MachineCode:
+    """A Compiler for the models: Functions in, machine-code Functions out (the same ones without a C compiler).
+
+    `machine_code` says whether everything it was given so far is machine code."""
+
+    def __init__(self, cache_dir: Path | None = None, *, cached: bool = True):
+        self.cache_dir = (cache_dir or default_cache_dir()) if cached else None
+        self.machine_code = True
+
+    def __call__(self, functions: list[ca.Function]) -> list[ca.Function]:
+        compiled, ok = jit_compiled_all(functions, self.cache_dir)
+        self.machine_code = self.machine_code and ok
+        return compiled
+
+
+CACHE_FLAGS = ("-O2", "-shared", "-fPIC")  # flags of the cached shared libraries (part of their key)
+
+
+def jit_compiled_all(functions: list[ca.Function], cache_dir: Path | None = None) -> tuple[list[ca.Function], bool]:
+    """The same Functions compiled to machine code (needs a C compiler), else themselves; True when every
+    one is machine code.
+
+    With `cache_dir`, the machine code is kept there and later calls, in any process, load it instead
+    of compiling again (the missing libraries compiled in parallel, one C compiler per core); without
+    one, or when the cache fails, CasADi's JIT compiles them for this process.
+    """
+    if cache_dir is not None:
+        try:
+            return cached_externals(functions, Path(cache_dir)), True
+        except (OSError, RuntimeError, subprocess.SubprocessError):
+            pass  # no compiler, or the cache is not writable: compiled for this process only
+    compiled = [_process_jit(function) for function in functions]
+    return [f for f, _ in compiled], all(ok for _, ok in compiled)
+
+
+def _process_jit(function: ca.Function) -> tuple[ca.Function, bool]:
+    """CasADi's own JIT, for this process only; the Function itself when that fails."""
+    try:
+        symbols = function.mx_in()
+        scratch = tempfile.gettempdir()  # CasADi's intermediate files stay out of the user's directory
+        compiled = ca.Function(function.name() + "_jit", symbols, function.call(symbols),
+                               function.name_in(), function.name_out(),
+                               {"jit": True, "compiler": "shell", "jit_name": "railswitch_jit",
+                                "jit_options": {"flags": ["-O2"], "verbose": False,
+                                                "directory": scratch + os.sep}})
+        compiled(*[np.zeros(function.size_in(i)) for i in range(function.n_in())])
+        return compiled, True
+    except RuntimeError:
+        return function, False
+
+
+def cached_externals(functions: list[ca.Function], cache_dir: Path) -> list[ca.Function]:
+    """Each function from `<cache_dir>/<key>.so`, compiled from its generated C code first if not there yet.
+
+    The key hashes the C source, CasADi's version, the machine and CACHE_FLAGS, so a changed model,
+    CasADi or flag set gets its own library. A library is compiled under a temporary name and renamed
+    into place (atomic), so processes compiling the same one at once never load a partial file. The C
+    code is generated here, one function after the other; only the compilers run in parallel.
+    """
+    libraries, missing = [], {}
+    for function in functions:
+        generator = ca.CodeGenerator("railswitch_cache.c", {"with_header": False})
+        generator.add(function)
+        source = generator.dump()
+        key = hashlib.sha256("\n".join([ca.__version__, platform.machine(), *CACHE_FLAGS, source]).encode()).hexdigest()
+        libraries.append(cache_dir / f"{key[:32]}.so")
+        if not libraries[-1].exists():
+            missing[libraries[-1]] = source
+    if missing:
+        compiler = shutil.which("gcc") or shutil.which("cc")
+        if compiler is None:
+            raise FileNotFoundError("no C compiler (gcc or cc) on PATH")
+        with ThreadPoolExecutor(max_workers=min(len(missing), os.cpu_count() or 1)) as pool:
+            for done in [pool.submit(_compile, compiler, source, library) for library, source in missing.items()]:
+                done.result()  # raises the first failure
+    return [ca.external(function.name(), str(library)) for function, library in zip(functions, libraries)]
+
+
+def _compile(compiler: str, source: str, library: Path) -> None:
+    with tempfile.TemporaryDirectory(dir=library.parent) as scratch:  # same file system: the rename is atomic
+        c_file, partial = Path(scratch) / "railswitch_cache.c", Path(scratch) / "library.so"
+        c_file.write_text(source)
+        subprocess.run([compiler, *CACHE_FLAGS, str(c_file), "-o", str(partial)], check=True, capture_output=True)
+        os.replace(partial, library)
+
+

@@ -1,0 +1,232 @@
+"""The one Zenoh helper: sessions from options or a config file, publishers, inboxes, liveliness, status.
+
+Every live service opens its session here, so mode, endpoints, scouting and a Zenoh
+config file (TLS, authentication, access control) behave the same everywhere.
+Subscriber callbacks only queue raw payloads; services decode in their own loop.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import queue
+import signal
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, NamedTuple
+
+import zenoh
+
+from railswitch.schemas import DEFAULT_ENDPOINT, SERVICE_PREFIX, Message, ServiceStatus, encode
+
+if TYPE_CHECKING:  # the intake module imports this one
+    from railswitch.services.core.intake import Intake
+
+log = logging.getLogger("railswitch.bus")
+
+RETRY_S = 1.0
+
+
+class BusError(RuntimeError):
+    """A session cannot be configured or opened; the message is one line."""
+
+
+@dataclass(frozen=True)
+class BusOptions:
+    """How a service joins the bus.
+
+    mode None keeps a config file's mode, else client. Without --connect a client or peer
+    connects to DEFAULT_ENDPOINT unless the config file names endpoints; multicast scouting
+    is off unless asked for, whatever the file says.
+    """
+
+    mode: str | None = None
+    connect: tuple[str, ...] = ()
+    listen: tuple[str, ...] = ()
+    config_file: str | None = None
+    multicast_scouting: bool = False
+
+
+def zenoh_config(options: BusOptions) -> zenoh.Config:
+    """The session config: the file (if any), then the options on top."""
+    if options.config_file:
+        try:
+            config = zenoh.Config.from_file(options.config_file)
+        except (zenoh.ZError, OSError, ValueError) as error:
+            raise BusError(f"cannot read Zenoh config {options.config_file}: {_one_line(error)}") from None
+    else:
+        config = zenoh.Config()
+    mode = options.mode or (None if options.config_file else "client")
+    if mode is not None:
+        config.insert_json5("mode", json.dumps(mode))
+    mode = json.loads(config.get_json("mode"))
+    connect = list(options.connect)
+    if not connect and mode != "router" and not json.loads(config.get_json("connect/endpoints") or "[]"):
+        connect = [DEFAULT_ENDPOINT]
+    try:
+        if connect:
+            config.insert_json5("connect/endpoints", json.dumps(connect))
+        if options.listen:
+            config.insert_json5("listen/endpoints", json.dumps(list(options.listen)))
+    except zenoh.ZError as error:
+        raise BusError(f"bad endpoint in {connect + list(options.listen)}: {_one_line(error)}") from None
+    config.insert_json5("scouting/multicast/enabled", json.dumps(options.multicast_scouting))
+    if mode != "router":
+        # Fail fast inside open() so that the retry loop below stays interruptible; once
+        # connected, Zenoh itself reconnects when the router comes back.
+        config.insert_json5("connect/timeout_ms", "2000")
+        config.insert_json5("connect/exit_on_failure", "true")
+    return config
+
+
+def _one_line(error: BaseException) -> str:
+    text = " ".join(str(error).split())
+    return text.split(" at /")[0][:300]  # Zenoh appends the Rust source location
+
+
+def open_session(options: BusOptions, *, retry: bool = True, wait_s: float | None = None,
+                 stop: threading.Event | None = None) -> zenoh.Session:
+    """Open a session, retrying every second while no router answers (until wait_s or stop)."""
+    config = zenoh_config(options)
+    deadline = None if wait_s is None else time.monotonic() + wait_s
+    announced = False
+    while True:
+        try:
+            return zenoh.open(config)
+        except zenoh.ZError as error:
+            reason = _one_line(error)
+            if not retry or "connect" not in reason.lower() or (deadline and time.monotonic() > deadline):
+                raise BusError(f"cannot open a Zenoh session: {reason}") from None
+            if not announced:
+                log.warning("waiting for the bus (%s); retrying every %.0f s", reason, RETRY_S)
+                announced = True
+            if stop is None:
+                time.sleep(RETRY_S)
+            elif stop.wait(RETRY_S):
+                raise BusError("stopped while waiting for the bus") from None
+            config = zenoh_config(options)  # a config is consumed by open()
+
+
+def instance_name() -> str:
+    """This process, as a key chunk: host-pid."""
+    host = "".join(c if c.isalnum() or c in "-_" else "-" for c in socket.gethostname()) or "host"
+    return f"{host}-{os.getpid()}"
+
+
+def declare_service(session: zenoh.Session, name: str) -> zenoh.LivelinessToken:
+    """Liveliness token railswitch/service/<name>/<instance> (docs/contracts.md section 3)."""
+    return session.liveliness().declare_token(f"{SERVICE_PREFIX}/{name}/{instance_name()}")
+
+
+class Publishers:
+    """One declared publisher per key, JSON-encoded, blocking rather than dropping under congestion."""
+
+    def __init__(self, session: zenoh.Session, *, congestion: zenoh.CongestionControl = zenoh.CongestionControl.BLOCK):
+        self._session = session
+        self._congestion = congestion
+        self._publishers: dict[str, zenoh.Publisher] = {}
+        self.published = 0
+
+    def put(self, key: str, message: Message | bytes) -> None:
+        publisher = self._publishers.get(key)
+        if publisher is None:
+            publisher = self._session.declare_publisher(key, encoding=zenoh.Encoding.APPLICATION_JSON,
+                                                        congestion_control=self._congestion)
+            self._publishers[key] = publisher
+        publisher.put(message if isinstance(message, bytes) else encode(message))
+        self.published += 1
+
+
+class Received(NamedTuple):
+    """One raw sample as it arrived: key, payload and local arrival time (monotonic seconds)."""
+
+    key: str
+    payload: bytes
+    arrived_s: float
+
+
+class Inbox:
+    """Subscriptions whose callbacks only enqueue; the service drains the queue in its own thread."""
+
+    def __init__(self, session: zenoh.Session, keys: list[str]):
+        self.queue: queue.SimpleQueue[Received] = queue.SimpleQueue()
+        self._subscribers = [session.declare_subscriber(key, self._on_sample) for key in keys]
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        self.queue.put(Received(str(sample.key_expr), sample.payload.to_bytes(), time.monotonic()))
+
+    def get(self, timeout_s: float) -> Received | None:
+        try:
+            return self.queue.get(timeout=timeout_s)
+        except queue.Empty:
+            return None
+
+    def drain(self, stop: threading.Event, poll_s: float = 0.2) -> Iterator[Received | None]:
+        """Received samples (None after poll_s without any) until stop is set; then the
+        subscriptions end and what is still queued comes out before the iterator does."""
+        while not stop.is_set():
+            yield self.get(poll_s)
+        self.close()
+        while (item := self.get(0.0)) is not None:
+            yield item
+
+    def close(self) -> None:
+        for subscriber in self._subscribers:
+            subscriber.undeclare()
+        self._subscribers = []
+
+
+class StatusReporter:
+    """Publishes a ServiceStatus on railswitch/service/<name>/<instance>/status every interval_s,
+    with what the service's intake (services/intake.py) received and rejected."""
+
+    def __init__(self, publishers: Publishers, service: str, intake: Intake, interval_s: float = 5.0):
+        self.publishers = publishers
+        self.service = service
+        self.intake = intake
+        self.instance = instance_name()
+        self.key = f"{SERVICE_PREFIX}/{service}/{self.instance}/status"
+        self.interval_s = interval_s
+        self._started = time.monotonic()
+        self._next = self._started
+
+    def maybe_publish(self, counters: dict[str, int], force: bool = False) -> None:
+        now = time.monotonic()
+        if not force and now < self._next:
+            return
+        self._next = now + self.interval_s
+        status = ServiceStatus(service=self.service, instance=self.instance, t_ns=time.time_ns(),
+                               uptime_s=now - self._started, received=self.intake.received,
+                               rejected=dict(self.intake.rejected),
+                               counters=counters)
+        self.publishers.put(self.key, status)
+
+
+@contextmanager
+def stop_on_signals() -> Iterator[threading.Event]:
+    """An Event set by SIGINT or SIGTERM, so services finish their work (and files) cleanly."""
+    stop = threading.Event()
+    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+
+    def handler(signum, frame):  # noqa: ARG001 - signal API
+        stop.set()
+
+    for sig in previous:
+        signal.signal(sig, handler)
+    try:
+        yield stop
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+
+
+def configure_logging(verbose: bool = False) -> None:
+    """One line per event on stderr, with the service's name."""
+    logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO,
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s", datefmt="%H:%M:%S")
+    zenoh.try_init_log_from_env()  # RUST_LOG=debug shows why a link is refused (TLS, credentials)
+

@@ -1,0 +1,27 @@
+"""`railswitch calibrate`: refit the reduced models' bearing-fault port on plant throws."""
+from __future__ import annotations
+
+import argparse
+
+from railswitch.models.reference import DIRECTIONS
+from railswitch.services.commands.options import add_model_argument, fail, models_named
+from railswitch.services.core.model_maintenance import calibrate_and_save
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_model_argument(parser, "all", default="all")
+    parser.add_argument("--replace-shipped", action="store_true",
+                        help="store the port in the weights shipped inside the installed package "
+                             "(default: the user's model directory, $RAILSWITCH_MODELS)")
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        for name in models_named(args.model):
+            path, port = calibrate_and_save(name, replace_shipped=args.replace_shipped)
+            ports = ", ".join(f"{d.replace('_', ' ')}: gain {port[d]['gain']:.4f}, offset {port[d]['offset_s_m']:.1f} N·s/m"
+                              for d in DIRECTIONS)
+            print(f"{name}: bearing port {ports} -> {path}")
+    except OSError as error:
+        return fail(f"cannot write the calibration: {error}")
+    return 0

@@ -1,0 +1,60 @@
+"""The `railswitch` command line (docs/contracts.md section 5): one module per command in this folder.
+
+Each command module has `add_arguments(parser)` and `run(args) -> exit code`. Only the module of the
+command asked for is imported, so a typo or `--help` answers at once.
+"""
+from __future__ import annotations
+
+import importlib
+import sys
+from collections.abc import Iterable
+
+from railswitch.services.commands.options import Parser
+
+COMMANDS: dict[str, str] = {  # name (and module) -> help
+    "simulate": "run the high-fidelity plant offline and write an MCAP recording",
+    "describe": "model statistics (states, parameters, rail nodes)",
+    "train": "regenerate the reduced rail models from high-fidelity plant data",
+    "calibrate": "calibrate the reduced models' bearing-fault port on plant throws",
+    "report": "PNG pictures of the throws in one or more recordings",
+    "diagnose": "diagnose every throw of a recording offline",
+    "recover": "copy what can be read from a damaged recording into a complete one",
+    "router": "a Zenoh router (eclipse-zenoh in router mode) listening on --listen (default tcp/127.0.0.1:7447)",
+    "simulator": "simulated switches publishing motor samples, throws and truth",
+    "diagnoser": "diagnose every finished throw on the bus",
+    "recorder": "record railswitch/** to an MCAP file",
+    "replay": "republish a recording's motor, throw and truth messages",
+    "watch": "live table of diagnoses",
+    "demo": "router, simulator, diagnoser and recorder with a live table and summary",
+}
+
+
+def build_parser(commands: Iterable[str] | None = None) -> Parser:
+    """The parser; the arguments of `commands` only (default: every command's)."""
+    chosen = set(COMMANDS if commands is None else commands)
+    parser = Parser(prog="railswitch", description="Online diagnosis of railway switches.")
+    subparsers = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
+    for name, help_text in COMMANDS.items():
+        sub = subparsers.add_parser(name, help=help_text)
+        if name in chosen:
+            module = importlib.import_module(f"railswitch.services.commands.{name}")
+            module.add_arguments(sub)
+            sub.set_defaults(handler=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    named = [word for word in argv if word in COMMANDS][:1]  # the first word that names a command
+    args = build_parser(named).parse_args(argv)
+    try:
+        return args.handler(args)
+    except KeyboardInterrupt:
+        return 130
+    except BrokenPipeError:  # `railswitch diagnose F --jsonl | head`: the reader left, nothing is wrong
+        sys.stderr.close()
+        return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

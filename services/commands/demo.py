@@ -1,0 +1,196 @@
+"""`railswitch demo`: the whole product on one machine, ending with a summary.
+
+An embedded Zenoh router runs in this process; the diagnoser, recorder and simulator run
+as separate `railswitch` processes connected to it. Every switch throws nominally for the
+first half of its throws and then with one fault mode (cycling through the four), so the
+summary can hold each decision against the injected truth.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from contextlib import nullcontext
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from rich.console import Console
+from rich.live import Live
+from rich.table import Table
+
+from railswitch.models.estimation import DRIVING_BOLT
+from railswitch.schemas import Diagnosis, FaultTruth
+from railswitch.services.adapters.zenoh_bus import BusError, BusOptions, Inbox, configure_logging, open_session, stop_on_signals
+from railswitch.services.adapters.recordings import RecordingPathError, check_writable
+from railswitch.services.core.intake import Intake
+from railswitch.services.adapters.processes import ServiceProcesses, free_loopback_endpoint, wait_ready
+from railswitch.services.commands.options import add_model_argument, bounded
+from railswitch.services.commands.watch import diagnosis_line, diagnosis_table
+
+log = logging.getLogger("railswitch.demo")
+
+DEMO_FAULTS = (  # the paper's four scenarios
+    {"left_bolt_offset": 0.05},
+    {"right_bolt_offset": 0.20},
+    {"bearing_friction": 5000.0},
+    {"obstacle_friction": 1.0e5, "obstacle_position": 1.10},
+)
+INTERVAL_S = 10.0
+READY_TIMEOUT_S = 300.0  # a diagnoser on a machine without the compiled-model cache needs a while
+DRAIN_TIMEOUT_S = 60.0
+
+
+def demo_scenario(switches: int, throws: int) -> str:
+    """TOML for `railswitch simulator --scenario`: nominal first half, then fault mode k mod 4."""
+    lines = [f"interval_s = {INTERVAL_S}", ""]
+    for k in range(switches):
+        faults = DEMO_FAULTS[k % len(DEMO_FAULTS)]
+        values = ", ".join(f"{name} = {value!r}" for name, value in faults.items())
+        lines += ["[[switches]]", f'id = "sw{k + 1}"', f"throws = {throws}", "",
+                  "[[switches.changes]]", f"throw = {throws // 2}", f"set = {{ {values} }}", ""]
+    return "\n".join(lines)
+
+
+def connect_endpoint(listen: str) -> str:
+    """Where local processes reach a router listening on `listen` (any-address becomes loopback)."""
+    proto, _, address = listen.partition("/")
+    host, _, port = address.rpartition(":")
+    if host in ("0.0.0.0", "[::]", "::", ""):
+        host = "127.0.0.1"
+    return f"{proto}/{host}:{port}"
+
+
+@dataclass
+class Outcome:
+    """What the demo saw: the diagnoses and the truth messages, per switch."""
+
+    diagnoses: list[Diagnosis] = field(default_factory=list)
+    truths: dict[str, list[FaultTruth]] = field(default_factory=dict)
+
+    def truth_at(self, switch_id: str, t_ns: int) -> FaultTruth | None:
+        earlier = [t for t in self.truths.get(switch_id, []) if t.t_ns <= t_ns]
+        return max(earlier, key=lambda t: t.t_ns) if earlier else None
+
+    def injected(self, diagnosis: Diagnosis) -> list[str]:
+        truth = self.truth_at(diagnosis.switch_id, diagnosis.t_start_ns)
+        return list(truth.active_modes()) if truth else []
+
+    def expected(self) -> dict[tuple[str, int], str]:
+        """The decision each throw should get: its injected mode, where a bolt counts once a throw
+        it drives (left bolt: left to right) has run with it, since the other direction cannot see it."""
+        out, seen = {}, {}
+        for d in sorted(self.diagnoses, key=lambda d: (d.switch_id, d.throw_index)):
+            modes = self.injected(d)
+            driven = DRIVING_BOLT[d.direction]
+            seen[d.switch_id] = {m for m in seen.get(d.switch_id, set()) if m in modes} | (
+                {driven} if driven in modes else set())
+            visible = [m for m in modes if m not in DRIVING_BOLT.values() or m in seen[d.switch_id]]
+            out[d.switch_id, d.throw_index] = "+".join(visible) or "nominal"
+        return out
+
+    def summary(self) -> tuple[Table, int]:
+        table = Table(title="demo summary: decision of each throw against the injected fault")
+        for column in ("switch", "throw", "direction", "injected", "expected", "decided", ""):
+            table.add_column(column)
+        correct, expected = 0, self.expected()
+        for d in sorted(self.diagnoses, key=lambda d: (d.switch_id, d.throw_index)):
+            want = expected[d.switch_id, d.throw_index]
+            ok = d.decision == want
+            correct += ok
+            table.add_row(d.switch_id, str(d.throw_index), d.direction, "+".join(self.injected(d)) or "none", want,
+                          d.decision, "[green]✓[/]" if ok else "[red]✗[/]")
+        return table, correct
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--switches", type=bounded(int, 1, 50), default=4)
+    parser.add_argument("--throws", type=bounded(int, 2, 1000), default=4, help="throws per switch")
+    parser.add_argument("--speed", type=bounded(float, 0.1, 1000.0, "x real time"), default=1.0)
+    parser.add_argument("--out", default="demo.mcap", metavar="F.mcap")
+    parser.add_argument("--listen", default=None, metavar="ENDPOINT",
+                        help="endpoint of the embedded router (default: a free loopback port)")
+    add_model_argument(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    configure_logging(False)
+    console = Console()
+    try:
+        out = check_writable(args.out)
+    except RecordingPathError as error:
+        print(f"railswitch: error: {error}", file=sys.stderr)
+        return 2
+    listen = args.listen or free_loopback_endpoint()
+    connect = connect_endpoint(listen)
+    with tempfile.TemporaryDirectory(prefix="railswitch-demo-") as scratch, stop_on_signals() as stop:
+        scratch_dir = Path(scratch)
+        scenario = scratch_dir / "scenario.toml"
+        scenario.write_text(demo_scenario(args.switches, args.throws))
+        try:
+            router = open_session(BusOptions(mode="router", listen=(listen,)), retry=False)
+        except BusError as error:
+            print(f"railswitch: error: {error}", file=sys.stderr)
+            return 2
+        processes = ServiceProcesses(scratch_dir, own_session=True)
+        outcome = Outcome()
+        try:
+            inbox = Inbox(router, ["railswitch/*/diagnosis", "railswitch/*/truth"])
+            console.print(f"router on {listen}; starting diagnoser ({args.model}) and recorder ({out})")
+            processes.start("diagnoser", "--connect", connect, "--model", args.model)
+            processes.start("recorder", "--connect", connect, "--out", str(out))
+            wait_ready(router, processes, READY_TIMEOUT_S, stop=stop, diagnoser=1, recorder=1)
+            if not stop.is_set():
+                console.print(f"simulating {args.switches} switches x {args.throws} throws at {args.speed:g}x real time")
+                simulator = processes.start("simulator", "--connect", connect, "--scenario", str(scenario),
+                                            "--speed", str(args.speed))
+                _follow(inbox, outcome, console, simulator, args.switches * args.throws, stop)
+                if simulator.returncode:
+                    raise RuntimeError(f"simulator failed:\n{processes.log(simulator, 8)}")
+        except (RuntimeError, TimeoutError) as error:
+            print(f"railswitch demo: {error}", file=sys.stderr)
+            return 1
+        finally:
+            processes.stop_all()
+            router.close()
+        table, correct = outcome.summary()
+        console.print(table)
+        missing = args.switches * args.throws - len(outcome.diagnoses)
+        console.print(f"{correct} of {len(outcome.diagnoses)} throws decided as expected"
+                      + (f"; {missing} throws without a diagnosis" if missing > 0 else "")
+                      + ("; stopped early" if stop.is_set() else ""))
+        console.print(f"recording: {out.resolve()}")
+        return 130 if stop.is_set() else 0
+
+
+def _follow(inbox: Inbox, outcome: Outcome, console: Console, simulator: subprocess.Popen, expected: int,
+            stop: threading.Event) -> None:
+    """Show diagnoses as they come, until every throw has one (or the simulator failed, or stop)."""
+    latest: dict[str, Diagnosis] = {}
+    intake = Intake(log, kinds=("diagnosis", "truth"))
+    drain_deadline = None
+    live = console.is_terminal
+    with Live(diagnosis_table(latest), console=console, auto_refresh=False) if live else nullcontext() as table:
+        while not stop.is_set() and len(outcome.diagnoses) < expected:
+            if simulator.poll() is not None:
+                if simulator.returncode != 0:
+                    return
+                drain_deadline = drain_deadline or time.monotonic() + DRAIN_TIMEOUT_S
+                if time.monotonic() > drain_deadline:
+                    break
+            item = inbox.get(0.2)
+            message = None if item is None else intake.message(item)
+            if message is None:
+                continue
+            if isinstance(message, FaultTruth):
+                outcome.truths.setdefault(message.switch_id, []).append(message)
+                continue
+            outcome.diagnoses.append(message)
+            latest[message.switch_id] = message
+            if live:
+                table.update(diagnosis_table(latest), refresh=True)
+            else:
+                console.print(diagnosis_line(message), highlight=False)

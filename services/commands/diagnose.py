@@ -1,0 +1,77 @@
+"""`railswitch diagnose F.mcap`: every throw of a recording, as a table or as JSON lines."""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from rich.console import Console
+from rich.progress import Progress
+from rich.table import Table
+
+from railswitch.schemas import ThrowEvent, encode
+from railswitch.services.core.fleet_diagnoser import DiagnosedThrow, Diagnoser, diagnose_messages
+from railswitch.services.adapters.recordings import load_recording
+from railswitch.services.commands.options import add_model_argument
+
+
+def key_estimate(item: DiagnosedThrow) -> str:
+    """The decided mode's parameters with their standard deviations."""
+    verdict = item.verdict
+    mode = item.diagnosis.decision
+    if verdict is None or mode not in verdict.estimates or mode == "nominal":
+        return ""
+    estimate = verdict.estimates[mode]
+    return ", ".join(f"{name}={value:.4g}±{estimate.std[name]:.2g}" for name, value in estimate.params.items())
+
+
+def diagnose_file(path: str, model: str = "poly", jsonl: bool = False) -> int:
+    """Diagnose a recording; 1 when nothing could be read, else 0."""
+    stderr = Console(stderr=True)
+    if not Path(path).is_file():
+        print(f"railswitch diagnose: {path}: no such file", file=sys.stderr)
+        return 2
+    recording = load_recording(path)
+    messages = recording.messages
+    note = recording.note()
+    if note:
+        print(f"railswitch diagnose: {path}: {note}", file=sys.stderr)  # one line, never wrapped
+    if not messages:
+        return 1
+    throws = sum(isinstance(m, ThrowEvent) and m.phase == "start" for m in messages)
+    diagnoser = Diagnoser(model)
+    table = Table("switch", "throw", "direction", "decision", "estimate ± std", "MSE", "ms", "truth", "reason",
+                  title=f"{Path(path).name} ({model})")
+    with Progress(console=stderr, transient=True, disable=not stderr.is_terminal) as progress:
+        task = progress.add_task("preparing the estimator", total=throws)
+        diagnoser.warm_up()
+        progress.update(task, description="diagnosing throws")
+        for item in diagnose_messages(messages, diagnoser):
+            progress.advance(task)
+            d = item.diagnosis
+            if jsonl:
+                sys.stdout.write(encode(d).decode() + "\n")
+                sys.stdout.flush()
+                continue
+            decided = next((h for h in d.hypotheses if h.mode == d.decision), None)
+            truth = item.throw.truth
+            truth_text = "" if truth is None else (", ".join(truth.active_modes()) or "nominal")
+            table.add_row(d.switch_id, str(d.throw_index), "L→R" if d.direction == "left_to_right" else "R→L",
+                          d.decision, key_estimate(item), f"{decided.mse:.2e}" if decided else "",
+                          f"{d.latency_ms:.0f}", truth_text, d.reason or "")
+    if not jsonl:
+        console = Console()
+        if not console.is_terminal:
+            console = Console(width=180)  # a file or pipe gets whole rows
+        console.print(table)
+    return 0
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("recording", metavar="F.mcap")
+    add_model_argument(parser)
+    parser.add_argument("--jsonl", action="store_true", help="one Diagnosis JSON object per throw on stdout")
+
+
+def run(args: argparse.Namespace) -> int:
+    return diagnose_file(args.recording, model=args.model, jsonl=args.jsonl)

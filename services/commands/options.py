@@ -1,0 +1,111 @@
+"""What the commands share: converters that name a bad value and its accepted range, the bus options of
+every live service, and the run loop of a service (logging, signals, one-line errors).
+
+Every bad value ends in one line on stderr that names it and the accepted range, and exit code 2
+(docs/contracts.md section 5).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from collections.abc import Callable
+
+from railswitch.schemas import DEFAULT_ENDPOINT, RAIL_MODELS, check_fault_value, check_switch_id
+
+MODES = ("client", "peer", "router")  # Zenoh's session modes
+
+
+class Parser(argparse.ArgumentParser):
+    """ArgumentParser whose errors are a single line (no usage dump)."""
+
+    def error(self, message: str):  # noqa: D401 - argparse API
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def fail(message: str) -> int:
+    print(f"railswitch: error: {message}", file=sys.stderr)
+    return 2
+
+
+def bounded(kind: type, low: float, high: float, unit: str = "") -> Callable[[str], float]:
+    """Converter for a number in [low, high]; the error names the value and the range."""
+    def convert(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"{text} is outside the accepted range {low:g} … {high:g}{' ' + unit if unit else ''}")
+        return value
+    return convert
+
+
+def fault_assignment(text: str) -> tuple[str, float]:
+    """NAME=VALUE with NAME a fault parameter (docs/contracts.md section 2) and VALUE in its range."""
+    name, sep, value = text.partition("=")
+    if not sep:
+        raise argparse.ArgumentTypeError(f"{text!r} is not NAME=VALUE")
+    try:
+        return name, check_fault_value(name.strip(), value.strip())
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def switch_id(text: str) -> str:
+    try:
+        return check_switch_id(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def add_model_argument(parser: argparse.ArgumentParser, *extra: str, default: str = "poly", help_text: str = "") -> None:
+    """--model: one of the reduced rail models (and `extra` choices such as all or none)."""
+    parser.add_argument("--model", choices=[*RAIL_MODELS, *extra], default=default,
+                        help=help_text or "reduced rail model")
+
+
+def models_named(choice: str) -> list[str]:
+    """The reduced models a --model choice names ("all": every one)."""
+    return list(RAIL_MODELS) if choice == "all" else [choice]
+
+
+# -- live services ---------------------------------------------------------------------------
+def add_service_arguments(parser: argparse.ArgumentParser, *, status: bool = False) -> None:
+    """The session options every live service takes, -v, and (for those that report) --status-interval."""
+    group = parser.add_argument_group("bus")
+    group.add_argument("--mode", choices=MODES, default=None, help="Zenoh mode (default: client, or the config file's)")
+    group.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                       help=f"endpoint to connect to, e.g. tcp/host:7447 (repeatable; default {DEFAULT_ENDPOINT})")
+    group.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
+                       help="endpoint to listen on (repeatable)")
+    group.add_argument("--zenoh-config", metavar="FILE", default=None,
+                       help="Zenoh JSON5 config file for TLS, authentication, access control (or $ZENOH_CONFIG)")
+    group.add_argument("--multicast-scouting", action="store_true", help="discover peers by multicast (off by default)")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    if status:
+        parser.add_argument("--status-interval", type=bounded(float, 0.1, 3600.0, "s"), default=5.0, metavar="S",
+                            help="seconds between status messages on railswitch/service/<name>/<instance>/status")
+
+
+def bus_options(args: argparse.Namespace):
+    """The BusOptions the arguments of add_service_arguments ask for."""
+    from railswitch.services.adapters.zenoh_bus import BusOptions
+
+    return BusOptions(mode=args.mode, connect=tuple(args.connect), listen=tuple(args.listen),
+                      config_file=args.zenoh_config or os.environ.get("ZENOH_CONFIG") or None,
+                      multicast_scouting=args.multicast_scouting)
+
+
+def run_service(run: Callable, args: argparse.Namespace) -> int:
+    """Run a live service `run(options, stop)` with logging, SIGINT/SIGTERM handling and one-line errors."""
+    from railswitch.services.adapters.zenoh_bus import BusError, configure_logging, stop_on_signals
+
+    configure_logging(args.verbose)
+    try:
+        options = bus_options(args)
+        with stop_on_signals() as stop:
+            run(options, stop)
+    except (BusError, OSError, ValueError) as error:
+        return fail(str(error))
+    return 0

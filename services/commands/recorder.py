@@ -1,0 +1,88 @@
+"""`railswitch recorder --out F.mcap`: every switch channel on the bus into one MCAP file.
+
+Channels, schemas and log times are those of `railswitch simulate` (docs/contracts.md section 4),
+plus the diagnosis and inject channels. The file is finished on SIGINT and SIGTERM; the
+chunk in progress is closed and handed to the operating system every second, so a killed
+recorder loses at most about a second, and `railswitch recover` turns what it left into a
+complete file. Closing chunks by time rather than by a small size keeps the writer's
+in-memory chunk index small over long recordings.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import shutil
+import threading
+import time
+from pathlib import Path
+
+from railswitch.services.adapters.recordings import RecordingPathError, RecordingWriter
+from railswitch.services.adapters.zenoh_bus import BusOptions, Inbox, Publishers, StatusReporter, declare_service, open_session
+from railswitch.services.commands.options import add_service_arguments, run_service
+from railswitch.services.core.bus_recorder import Recorder
+
+log = logging.getLogger("railswitch.recorder")
+
+FLUSH_S = 1.0
+CHUNK_BYTES = 1 << 20  # a chunk also closes every FLUSH_S, so few chunks (and index entries) even for a fleet
+MIN_FREE_BYTES = 64 * 2**20
+
+
+def output_path(pattern: str) -> Path:
+    """--out with `{time}` replaced by the UTC start time, so a restarted recorder never overwrites."""
+    return Path(pattern.replace("{time}", time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())))
+
+
+def check_space(path: Path, needed: int = MIN_FREE_BYTES) -> None:
+    """A recorder must not find out after an hour that its disk is full."""
+    free = shutil.disk_usage(path.parent).free
+    if free < needed:
+        raise RecordingPathError(f"cannot record to {path}: only {free / 2**20:.0f} MiB free on its disk "
+                                 f"(at least {needed / 2**20:.0f} MiB needed)")
+
+
+def run_recorder(options: BusOptions, out: str, *, stop: threading.Event, status_s: float = 5.0) -> int:
+    """Record until stop is set; the file is finished in every case. Returns the messages written.
+
+    An unwritable path or a full disk fails here, before connecting.
+    """
+    path = output_path(out)
+    with RecordingWriter(path, atomic=False, chunk_size=CHUNK_BYTES) as writer:
+        check_space(writer.path)
+        try:
+            writer.flush()  # the header reaches the disk now: a full device fails at start
+        except OSError as error:
+            raise RecordingPathError(f"cannot write recording {path}: {error.strerror}") from None
+        session = open_session(options, stop=stop)
+        try:
+            inbox = Inbox(session, ["railswitch/**"])
+            token = declare_service(session, "recorder")
+            recorder = Recorder(writer)
+            status = StatusReporter(Publishers(session), "recorder", recorder.intake, status_s)
+            log.info("recording railswitch/** to %s", writer.path)
+            flushed = time.monotonic()
+            for item in inbox.drain(stop):
+                if item is not None:
+                    recorder.handle(item)
+                if time.monotonic() - flushed > FLUSH_S:
+                    writer.flush()
+                    flushed = time.monotonic()
+                status.maybe_publish({"written": writer.message_count})
+            status.maybe_publish({"written": writer.message_count}, force=True)
+            token.undeclare()
+        finally:
+            session.close()
+        log.info("wrote %d messages to %s; rejected %s", writer.message_count, writer.path,
+                 dict(recorder.intake.rejected) or "nothing")
+        return writer.message_count
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_service_arguments(parser, status=True)
+    parser.add_argument("--out", required=True, metavar="F.mcap",
+                        help="file to write; {time} in the name becomes the UTC start time")
+
+
+def run(args: argparse.Namespace) -> int:
+    return run_service(lambda options, stop: run_recorder(options, args.out, stop=stop, status_s=args.status_interval),
+                       args)

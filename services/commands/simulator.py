@@ -1,0 +1,142 @@
+"""`railswitch simulator`: simulated switches on the bus, paced in real time or faster.
+
+Each switch computes a whole throw (or idle period) ahead with the high-fidelity plant
+and then streams its samples at the sample rate, so the cost scales with throws, not
+samples. Switches' throws are staggered evenly over the interval. FaultCommands on
+railswitch/<id>/inject act from the next throw on.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import threading
+import time
+
+from railswitch.models.plant import Plant
+from railswitch.models.switch import RecordedThrow, ReplayedSwitch, SwitchSimulation
+from railswitch.schemas import FaultCommand
+from railswitch.schemas.scenario import Scenario, ScenarioError, SwitchPlan, load_scenario
+from railswitch.services.adapters.recordings import load_recording
+from railswitch.services.adapters.zenoh_bus import BusOptions, Inbox, Publishers, StatusReporter, declare_service, open_session
+from railswitch.services.commands.options import (
+    add_service_arguments,
+    bounded,
+    fail,
+    fault_assignment,
+    run_service,
+    switch_id,
+)
+from railswitch.services.core.intake import Intake
+from railswitch.services.core.simulated_fleet import SwitchStream, recorded_throws
+
+log = logging.getLogger("railswitch.simulator")
+
+LEAD_S = 1.0  # samples at rest before the first throw, so subscribers see the switch settled
+
+
+def run_simulator(options: BusOptions, scenario: Scenario, *, speed: float, stop: threading.Event,
+                  library: list[RecordedThrow] | None = None, status_s: float = 5.0) -> int:
+    """Stream the scenario's switches until every plan is done or stop is set; returns messages published.
+
+    With a library of recorded throws the switches replay those instead of running the plant.
+    """
+    session = open_session(options, stop=stop)
+    try:
+        publishers = Publishers(session)
+        inbox = Inbox(session, ["railswitch/*/inject"])
+        intake = Intake(log, kinds=("inject",))
+        status = StatusReporter(publishers, "simulator", intake, status_s)
+        token = declare_service(session, "simulator")
+        plant = Plant() if library is None else None
+        start_ns = time.time_ns()
+        count = len(scenario.switches)
+        streams = {}
+        for k, plan in enumerate(scenario.switches):
+            if plant is None:
+                sim = ReplayedSwitch(library, rate_hz=scenario.rate_hz, start_ns=start_ns, first=k)
+            else:
+                sim = SwitchSimulation(plant, rate_hz=scenario.rate_hz, faults=plan.faults, noise_rel=scenario.noise,
+                                       seed=scenario.seed + k, start_ns=start_ns)
+            streams[plan.id] = SwitchStream.start(plan, sim, interval_s=scenario.interval_s,
+                                                  offset_s=LEAD_S + k * scenario.interval_s / count)
+        log.info("simulating %d switch(es) at %g samples/s, %gx real time", count, scenario.rate_hz, speed)
+        clock = next(iter(streams.values())).sim
+        wall0, tick = time.monotonic(), 0
+        while not stop.is_set() and not all(s.done for s in streams.values()):
+            t_ns = clock.time_ns(tick)
+            for stream in streams.values():
+                for key, message in stream.due(t_ns):
+                    publishers.put(key, message)
+            _apply_commands(inbox, intake, streams)
+            status.maybe_publish({"published": publishers.published})
+            tick += 1
+            delay = wall0 + tick / (scenario.rate_hz * speed) - time.monotonic()
+            if delay > 0:
+                stop.wait(delay)
+        token.undeclare()
+        log.info("published %d messages", publishers.published)
+        return publishers.published
+    finally:
+        session.close()
+
+
+def _apply_commands(inbox: Inbox, intake: Intake, streams: dict[str, SwitchStream]) -> None:
+    while (item := inbox.get(0.0)) is not None:
+        command = intake.message(item)
+        if isinstance(command, FaultCommand) and command.switch_id in streams:
+            streams[command.switch_id].command(command)
+
+
+def scenario_from_args(args: argparse.Namespace) -> Scenario:
+    """The --scenario file, or a scenario built from the simple options."""
+    simple = {"switches": args.switches, "switch_id": args.switch_id or None, "throws": args.throws,
+              "interval": args.interval, "fault": args.fault or None, "noise": args.noise, "rate": args.rate}
+    if args.scenario:
+        given = [f"--{name.replace('_', '-')}" for name, value in simple.items() if value is not None]
+        if given:
+            raise ScenarioError(f"--scenario excludes {', '.join(given)} (the file says it)")
+        return load_scenario(args.scenario)
+    if args.switch_id and args.switches is not None:
+        raise ScenarioError("give --switches N or --switch-id ID (repeatable), not both")
+    ids = args.switch_id or [f"sw{k + 1}" for k in range(args.switches or 1)]
+    if len(set(ids)) != len(ids):
+        raise ScenarioError(f"--switch-id repeats: {ids}")
+    plans = [SwitchPlan(id=i, throws=args.throws or 1_000_000, faults=dict(args.fault)) for i in ids]
+    return Scenario(interval_s=args.interval or 10.0, rate_hz=args.rate or 50.0, noise=args.noise or 0.0,
+                    seed=args.seed, switches=plans)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_service_arguments(parser, status=True)
+    parser.add_argument("--scenario", metavar="F.toml", help="schedule of switches, throws and fault changes")
+    parser.add_argument("--switches", type=bounded(int, 1, 10_000), default=None, help="switches sw1 … swN")
+    parser.add_argument("--switch-id", type=switch_id, action="append", default=[], help="a switch (repeatable)")
+    parser.add_argument("--throws", type=bounded(int, 1, 1_000_000), default=None,
+                        help="throws per switch (default: until stopped)")
+    parser.add_argument("--interval", type=bounded(float, 7.5, 86_400.0, "s"), default=None,
+                        help="simulated seconds between a switch's throw starts (default 10)")
+    parser.add_argument("--fault", type=fault_assignment, action="append", default=[], metavar="NAME=VALUE",
+                        help="fault injected in every switch from the start (repeatable)")
+    parser.add_argument("--noise", type=bounded(float, 0.0, 0.5), default=None, metavar="REL")
+    parser.add_argument("--seed", type=bounded(int, 0, 2**32 - 1), default=0)
+    parser.add_argument("--rate", type=bounded(float, 1.0, 1000.0, "samples/s"), default=None,
+                        help="samples per second (default 50)")
+    parser.add_argument("--speed", type=bounded(float, 0.01, 10_000.0, "x real time"), default=1.0)
+    parser.add_argument("--throws-from", metavar="F.mcap", default=None,
+                        help="stream the recorded throws of F (both directions) instead of running the plant: "
+                             "hundreds of switches on one core")
+
+
+def run(args: argparse.Namespace) -> int:
+    library = None
+    if args.throws_from:
+        try:
+            library = recorded_throws(load_recording(args.throws_from).messages)
+            ReplayedSwitch(library)  # its own check (a complete throw each way), before connecting
+        except OSError as error:
+            return fail(f"cannot read {args.throws_from}: {error.strerror}")
+        except ValueError as error:
+            return fail(f"{args.throws_from}: {error}")
+    return run_service(lambda options, stop: run_simulator(options, scenario_from_args(args), speed=args.speed,
+                                                           stop=stop, library=library, status_s=args.status_interval),
+                       args)

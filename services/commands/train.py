@@ -1,0 +1,30 @@
+"""`railswitch train`: refit the reduced rail models on high-fidelity plant data."""
+from __future__ import annotations
+
+import argparse
+
+from railswitch.services.commands.options import add_model_argument, bounded, fail, models_named
+from railswitch.services.core.model_maintenance import train_and_save
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_model_argument(parser, "all", default="all")
+    parser.add_argument("--seed", type=bounded(int, 0, 2**32 - 1), default=0)
+    parser.add_argument("--iterations", type=bounded(int, 1, 1000), default=40,
+                        help="Levenberg-Marquardt iterations per fitting stage")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--out", default=None, metavar="DIR",
+                       help="where to write <model>.json (default: the user's model directory, $RAILSWITCH_MODELS)")
+    where.add_argument("--replace-shipped", action="store_true",
+                       help="overwrite the weights shipped inside the installed package")
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        for name in models_named(args.model):
+            path, seconds = train_and_save(name, seed=args.seed, iterations=args.iterations, out_dir=args.out,
+                                           replace_shipped=args.replace_shipped)
+            print(f"trained {name} in {seconds:.1f} s: {path} (then `railswitch calibrate --model {name}`)")
+    except OSError as error:
+        return fail(f"cannot write the parameters: {error}")
+    return 0

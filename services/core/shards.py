@@ -1,0 +1,22 @@
+"""Splitting a fleet between diagnoser processes: shard K of N by a stable hash of the switch id."""
+from __future__ import annotations
+
+import zlib
+
+
+def parse_shard(text: str) -> tuple[int, int]:
+    """'K/N' with 1 <= K <= N <= 1024; ValueError names the value and the range."""
+    k, sep, n = text.partition("/")
+    try:
+        shard, shards = int(k), int(n)
+    except ValueError:
+        raise ValueError(f"{text!r} is not K/N (shard K of N, e.g. 1/2)") from None
+    if not sep or not 1 <= shards <= 1024 or not 1 <= shard <= shards:
+        raise ValueError(f"shard {text} is outside the accepted range 1/N … N/N with N in 1 … 1024")
+    return shard, shards
+
+
+def in_shard(switch_id: str, shard: tuple[int, int]) -> bool:
+    """Stable across processes and machines (CRC-32 of the id, not Python's salted hash)."""
+    k, n = shard
+    return zlib.crc32(switch_id.encode()) % n == k - 1

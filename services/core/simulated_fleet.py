@@ -1,0 +1,98 @@
+"""Simulated switches on the bus: each computes a whole throw (or idle period) ahead, with the plant or
+from recorded throws, and hands out its messages as their time comes; fault schedules and commands
+act from the next throw on."""
+from __future__ import annotations
+
+import logging
+from collections import deque
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from railswitch.models.reference import THROW_DURATION_S, Reference
+from railswitch.models.switch import RecordedThrow, ReplayedSwitch, SwitchSimulation
+from railswitch.schemas import FaultCommand, Message
+from railswitch.schemas.scenario import SwitchPlan
+from railswitch.services.core.switch_messages import motor_messages, throw_messages, truth_message
+from railswitch.services.core.throw_cutter import cut_throws
+
+log = logging.getLogger("railswitch.simulator")
+
+
+@dataclass
+class SwitchStream:
+    """One simulated switch: its plant simulation, fault schedule and the messages computed ahead."""
+
+    plan: SwitchPlan
+    sim: SwitchSimulation | ReplayedSwitch
+    idle_s: float
+    faults: dict[str, float]
+    pending: deque[tuple[int, str, Message]] = field(default_factory=deque)
+    throws_done: int = 0
+    idle_next: bool = False
+    finished: bool = False
+
+    @classmethod
+    def start(cls, plan: SwitchPlan, sim: SwitchSimulation | ReplayedSwitch, *, interval_s: float, offset_s: float) -> SwitchStream:
+        stream = cls(plan, sim, interval_s - THROW_DURATION_S, dict(plan.faults))
+        stream._push([truth_message(plan.id, sim, sim.time_ns(0))])
+        stream._push(motor_messages(plan.id, sim, sim.initial_sample()))
+        if offset_s > 0:
+            stream._push(motor_messages(plan.id, sim, sim.idle(offset_s)))
+        return stream
+
+    def _push(self, messages: Iterable[tuple[str, Message]]) -> None:
+        for key, message in messages:
+            self.pending.append((message.t_ns, key, message))
+
+    @property
+    def done(self) -> bool:
+        return self.finished and not self.pending
+
+    def due(self, t_ns: int) -> list[tuple[str, Message]]:
+        """Messages with a time up to t_ns, computing the next throw or idle period when needed."""
+        while not self.finished and (not self.pending or self.pending[-1][0] < t_ns):
+            self._extend()
+        out = []
+        while self.pending and self.pending[0][0] <= t_ns:
+            _, key, message = self.pending.popleft()
+            out.append((key, message))
+        return out
+
+    def _extend(self) -> None:
+        if self.idle_next:
+            self.idle_next = False
+            self._push(motor_messages(self.plan.id, self.sim, self.sim.idle(self.idle_s)))
+        elif self.throws_done < self.plan.throws:
+            try:
+                self.faults = self.plan.faults_before(self.throws_done, self.faults)
+            except ValueError as error:
+                log.warning("%s; keeping the faults in force", error)
+            self.sim.set_faults(self.faults)
+            throw = self.sim.throw()
+            log.info("%s throw %d %s, faults %s", self.plan.id, throw.index, throw.direction, self.faults or "none")
+            self._push(throw_messages(self.plan.id, self.sim, throw))
+            self.throws_done += 1
+            self.idle_next = self.throws_done < self.plan.throws
+        else:
+            self.finished = True
+
+    def command(self, command: FaultCommand) -> None:
+        """Apply a FaultCommand from the next throw on."""
+        faults = {} if command.reset else dict(self.faults)
+        faults.update(command.params)
+        self.faults = faults
+        log.info("%s: faults set to %s from throw %d on", self.plan.id, faults or "none", self.throws_done)
+
+
+def recorded_throws(messages: Iterable[Message]) -> list[RecordedThrow]:
+    """The complete throws of a recording, as material for ReplayedSwitch."""
+    out = []
+    for throw in cut_throws(messages):
+        if throw.end is None or throw.missing_samples:
+            continue
+        after = throw.t_s > 0  # the sample at the start event belongs to the rest before the throw
+        reference = Reference(np.asarray(throw.start.reference_t_s), np.asarray(throw.start.reference_velocity_rad_s))
+        out.append(RecordedThrow(throw.start.direction, reference, throw.signals[after]))
+    return out

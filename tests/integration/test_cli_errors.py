@@ -1,0 +1,23 @@
+"""Bad command-line values of the live services: one line naming them, exit code 2."""
+import subprocess
+import sys
+
+import pytest
+
+from tests.live import ROOT
+
+
+@pytest.mark.parametrize("args, words", [
+    (["diagnoser", "--shard", "3/2"], "shard 3/2 is outside the accepted range"),
+    (["simulator", "--speed", "0"], "0 is outside the accepted range"),
+    (["simulator", "--connect", "nowhere"], "bad endpoint"),
+    (["simulator", "--switches", "2", "--switch-id", "a"], "not both"),
+    (["recorder", "--out", "/nonexistent-dir/x.mcap"], "does not exist"),
+    (["replay", "/nonexistent.mcap"], "cannot read"),
+])
+def test_bad_service_options_give_one_line_and_exit_2(args, words):
+    result = subprocess.run([sys.executable, "-m", "railswitch", *args], cwd=ROOT, capture_output=True, text=True,
+                            timeout=60)
+    assert result.returncode == 2, result.stderr
+    assert words in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1, result.stderr

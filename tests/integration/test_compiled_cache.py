@@ -1,0 +1,79 @@
+"""Compiled CasADi Functions cached on disk: compiled once, loaded by later calls, same numbers."""
+import shutil
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from railswitch.models.estimation import Measurement, ThrowEstimator
+from railswitch.models.faults import fault_vector
+from railswitch.models.reduced import ReducedSwitch
+from railswitch.models.reference import throw_reference
+from railswitch.models.signals import MotorSignals
+from railswitch.services.adapters import model_store
+from railswitch.services.adapters.compiled import MachineCode, jit_compiled_all
+
+needs_compiler = pytest.mark.skipif(shutil.which("gcc") is None and shutil.which("cc") is None,
+                                    reason="no C compiler: nothing is cached")
+
+
+def small_function() -> ca.Function:
+    """Two inputs, a dense and a sparse (Jacobian) output, as the estimator's Functions have."""
+    x, a = ca.MX.sym("x", 3), ca.MX.sym("a", 2)
+    y = ca.vertcat(ca.sin(x[0]) * a[0], x[1] * x[2] + a[1], ca.exp(-x[2]))
+    return ca.Function("small", [x, a], [y, ca.jacobian(y, x)], ["x", "a"], ["y", "dy_dx"])
+
+
+@needs_compiler
+def test_first_call_compiles_one_library_and_the_second_loads_it_with_the_same_numbers(tmp_path):
+    function = small_function()
+    x, a = np.array([0.3, -1.2, 0.7]), np.array([2.0, 0.5])
+    (first,), compiled = jit_compiled_all([function], tmp_path)
+    libraries = sorted(tmp_path.iterdir())
+    assert compiled and [p.suffix for p in libraries] == [".so"]
+    stamp = libraries[0].stat().st_mtime_ns
+    (second,), compiled = jit_compiled_all([function], tmp_path)
+    assert compiled and sorted(tmp_path.iterdir()) == libraries and libraries[0].stat().st_mtime_ns == stamp
+    for loaded in (first, second):
+        assert loaded.class_name() == "External"  # the cached library, not CasADi's JIT
+        assert loaded.name_in() == ["x", "a"] and loaded.name_out() == ["y", "dy_dx"]
+        assert loaded.sparsity_out(1) == function.sparsity_out(1)
+        for got, expected in zip(loaded(x, a), function(x, a)):
+            np.testing.assert_allclose(np.asarray(got), np.asarray(expected), rtol=1e-14, atol=0.0)
+
+
+def test_a_missing_cache_directory_is_not_created_and_the_function_still_evaluates(tmp_path):
+    function = small_function()
+    (compiled_function,), _ = jit_compiled_all([function], tmp_path / "missing")
+    got = compiled_function(np.array([0.3, -1.2, 0.7]), np.array([2.0, 0.5]))[0]
+    np.testing.assert_allclose(np.asarray(got), np.asarray(function([0.3, -1.2, 0.7], [2.0, 0.5])[0]), rtol=1e-14)
+    assert not (tmp_path / "missing").exists()
+
+
+@needs_compiler
+def test_estimator_built_from_the_cache_gives_the_uncompiled_residual_and_derivatives(tmp_path):
+    stored = model_store.load("poly")
+    reduced = ReducedSwitch(stored.representation, stored.weights)
+    samples, reference = 50, throw_reference("left_to_right")
+    uncompiled = ThrowEstimator(reduced, samples)
+    blank = np.zeros(samples)
+    y = uncompiled.simulate(Measurement("left_to_right", reference, MotorSignals(blank, blank, blank), 0.0, 1.0),
+                            {"left_bolt_offset": 0.05})
+    m = Measurement("left_to_right", reference, MotorSignals(y["current_a"], y["angle_rad"], y["velocity_rad_s"]), 0.0, 1.0)
+    theta = fault_vector({"left_bolt_offset": 0.02, "bearing_friction": 1e3})
+
+    def evaluations(estimator: ThrowEstimator) -> list:
+        """Every compiled Function once: residual, linearisations along 1, 2 and 5 parameters, grid costs."""
+        data = estimator._data(m)
+        grid = np.tile(theta[:, None], estimator._grid.function.size2_in(0))
+        out = [estimator._residuals(theta, data), *estimator._linearise(theta, data, [0]),
+               *estimator._linearise(theta, data, [0, 2]), *estimator._linearise(theta, data, [0, 1, 2, 3, 4]),
+               estimator._grid(grid, *data)[0]]
+        return [np.asarray(value) for value in out]
+
+    expected = evaluations(uncompiled)
+    for build in ("compiles", "loads"):
+        cached = ThrowEstimator(reduced, samples, MachineCode(tmp_path))
+        assert cached._residual.function.class_name() == "External" and len(list(tmp_path.glob("*.so"))) == 5, build
+        for got, value in zip(evaluations(cached), expected):
+            np.testing.assert_allclose(got, value, rtol=1e-10, atol=1e-12 * np.max(np.abs(value)))

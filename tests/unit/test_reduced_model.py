@@ -1,0 +1,155 @@
+"""Reduced hybrid switch models: dissipation, fidelity to the plant, fault sensitivities, training."""
+import casadi as ca
+import numpy as np
+import pytest
+
+from railswitch.services.adapters import model_store
+from railswitch.models.faults import FAULT_ORDER, fault_vector
+from railswitch.models.rail_models import REPRESENTATIONS
+from railswitch.models.reduced import OUTPUTS, ReducedSwitch
+from railswitch.models.switch import SwitchSimulation
+from railswitch.schemas import RAIL_MODELS
+
+MODELS = RAIL_MODELS  # every representation
+
+
+@pytest.fixture(scope="module")
+def nominal_plant_throws(plant):
+    sim = SwitchSimulation(plant)
+    starts, throws = [], []
+    for _ in range(2):
+        starts.append(plant.signals_at(sim.state))
+        throws.append(sim.throw())
+    return starts, throws
+
+
+@pytest.mark.parametrize("name", ["poly", "nn"])
+def test_acausal_representation_energy_never_increases_without_force(name):
+    representation, weights = model_store.load(name).representation, model_store.load(name).weights
+    x, v = ca.SX.sym("x"), ca.SX.sym("v")
+    rhs = ca.vertcat(v, representation.acceleration(x, v, 0.0, weights))
+    grid = np.linspace(0.002, 2.0, 1000)
+    integrate = ca.integrator("free_rail", "cvodes", {"x": ca.vertcat(x, v), "ode": rhs}, 0.0, grid,
+                              {"reltol": 1e-10, "abstol": 1e-12})
+    energy = ca.Function("energy", [x, v], [representation.energy(x, v, weights, quadrature_points=512)])
+    rng = np.random.default_rng(11)
+    for _ in range(8):
+        s0 = np.array([rng.uniform(0.95, 1.25), rng.uniform(-0.3, 0.3)])
+        trajectory = np.hstack([s0[:, None], np.asarray(integrate(x0=s0)["xf"])])
+        e = np.array([float(energy(*p)) for p in trajectory.T])
+        assert e[0] > 0.5
+        assert np.all(np.diff(e) <= 1e-7 * e[0])
+        assert e[-1] < e[0]
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_shipped_weights_reproduce_the_plants_nominal_throws(name, nominal_plant_throws):
+    representation, weights = model_store.load(name).representation, model_store.load(name).weights
+    reduced = ReducedSwitch(representation, weights)
+    starts, throws = nominal_plant_throws
+    for start, throw in zip(starts, throws):
+        s0 = reduced.initial_state(start["rail_position_m"], start["angle_rad"], start["velocity_rad_s"],
+                                   start["current_a"])
+        out = reduced.simulate(s0, throw.reference, len(throw.samples))
+        assert abs(out["rail_position_m"][-1] - throw.samples.rail_position_m[-1]) < 0.005
+        plateau = slice(150, 250)  # 3 s to 5 s: the blades are moving
+        plant_plateau = np.mean(np.abs(throw.samples.signals.current_a[plateau]))
+        assert np.mean(np.abs(out["current_a"][plateau])) == pytest.approx(plant_plateau, rel=0.10)
+
+
+def output_sensitivities(reduced, s0, reference, faults):
+    """d(current, velocity)/d(fault parameter) over a throw, by CasADi's AD."""
+    n = 350
+    theta = ca.MX.sym("theta", len(FAULT_ORDER))
+    y, _ = reduced.rollout(n)(s0, reduced.reference_columns(reference, n), theta, reduced.weights)
+    signals = ca.vertcat(y[OUTPUTS.index("current_a"), :].T, y[OUTPUTS.index("velocity_rad_s"), :].T)
+    jac = ca.Function("fault_jacobian", [theta], [ca.jacobian(signals, theta)])
+    return dict(zip(FAULT_ORDER, np.asarray(jac(fault_vector(faults))).T))
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_outputs_have_finite_nonzero_derivatives_where_each_fault_acts(name):
+    from railswitch.models.reference import throw_reference
+
+    representation, weights = model_store.load(name).representation, model_store.load(name).weights
+    reduced = ReducedSwitch(representation, weights)
+    faults = {"left_bolt_offset": 0.01, "right_bolt_offset": 0.01, "bearing_friction": 2000.0,
+              "obstacle_friction": 5e4, "obstacle_position": 1.10}
+    left_to_right = output_sensitivities(reduced, reduced.initial_state(1.0, 0.0),
+                                         throw_reference("left_to_right"), faults)
+    closed_right = reduced.initial_state(1.2, reduced.params.plant.drive.throw_angle_rad)
+    right_to_left = output_sensitivities(reduced, closed_right, throw_reference("right_to_left"), faults)
+    for sensitivities in (left_to_right, right_to_left):
+        assert all(np.all(np.isfinite(column)) for column in sensitivities.values())
+    assert np.max(np.abs(left_to_right["left_bolt_offset"])) > 1.0
+    assert np.max(np.abs(right_to_left["right_bolt_offset"])) > 1.0
+    for both in ("bearing_friction", "obstacle_friction", "obstacle_position"):
+        assert np.max(np.abs(left_to_right[both])) > 0 and np.max(np.abs(right_to_left[both])) > 0
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_sensitivity_rollout_gives_the_derivatives_of_the_rollout(name):
+    """The estimator's Jacobians (sensitivities carried through each step) equal CasADi's AD of the rollout."""
+    from railswitch.models.reference import throw_reference
+
+    representation, weights = model_store.load(name).representation, model_store.load(name).weights
+    reduced = ReducedSwitch(representation, weights)
+    n, s0 = 120, reduced.initial_state(1.0, 0.0)
+    refs = reduced.reference_columns(throw_reference("left_to_right"), n)
+    theta = fault_vector({"left_bolt_offset": 0.03, "bearing_friction": 2000.0, "obstacle_friction": 5e4,
+                          "obstacle_position": 1.05})
+    symbol = ca.MX.sym("theta", len(FAULT_ORDER))
+    y, _ = reduced.rollout(n)(s0, refs, symbol, reduced.weights)
+    expected = np.asarray(ca.Function("j", [symbol], [ca.jacobian(ca.vec(y), symbol)])(theta))
+    seeds = np.eye(len(FAULT_ORDER))[:, [0, 2, 4]]  # three of the five parameters, in any order
+    y_sens, y_dot = reduced.sensitivity_rollout(n, seeds.shape[1])(s0, refs, theta, seeds, reduced.weights)
+    nominal, _ = reduced.rollout(n)(s0, refs, theta, reduced.weights)
+    np.testing.assert_allclose(np.asarray(y_sens), np.asarray(nominal), rtol=1e-12)
+    y_dot = np.asarray(y_dot)
+    for j, parameter in enumerate([0, 2, 4]):
+        block = y_dot[j * len(OUTPUTS):(j + 1) * len(OUTPUTS), :]
+        column = expected[:, parameter]
+        np.testing.assert_allclose(block.ravel(order="F"), column, rtol=1e-8, atol=1e-9 * np.max(np.abs(column)))
+
+
+def test_describe_lists_each_reduced_model_with_states_parameters_and_equations():
+    from railswitch.services.core.model_maintenance import describe_reduced
+
+    described = describe_reduced()
+    assert set(described) == set(MODELS)
+    for name, entry in described.items():
+        assert entry["parameters"] == REPRESENTATIONS[name].size
+        assert entry["switch_states"] == 8 and entry["equations"]
+        assert entry["trained"]["series_seeds"]
+
+
+def test_hook_levels_stay_between_0_and_1_when_a_bolt_arrives_within_a_step():
+    """The lock's hooks relax exactly (Rush-Larsen): a hook whose release switches on during a step,
+    as the driving bolt arrives, never overshoots out of [0, 1], whatever the step and the speed."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from railswitch.models.drive import motor_angle_at_rod
+
+    representation, weights = model_store.load("poly").representation, model_store.load("poly").weights
+    reduced = {rate: ReducedSwitch(representation, weights, rate_hz=rate) for rate in (10.0, 50.0)}
+    p = reduced[10.0].params.plant
+    free_play = p.adjuster.free_play_m
+
+    @settings(max_examples=40, deadline=None, derandomize=True)
+    @given(rate=st.sampled_from(sorted(reduced)), speed=st.floats(20.0, 300.0), before_m=st.floats(0.0, 0.004),
+           bolt=st.floats(-0.02, 0.2), leftwards=st.booleans())
+    def check(rate, speed, before_m, bolt, leftwards):
+        if leftwards:  # closed at the right, the right bolt about to reach the adjuster's release point
+            rod = p.drive.linkage_ratio * p.rail.right_stock_m - free_play - bolt + before_m
+            s = [motor_angle_at_rod(p.drive, rod), -speed, 0.0, 0.0, p.rail.right_stock_m, 0.0, 0.0, 1.0]
+        else:
+            rod = p.drive.linkage_ratio * p.rail.left_stock_m + free_play + bolt - before_m
+            s = [motor_angle_at_rod(p.drive, rod), speed, 0.0, 0.0, p.rail.left_stock_m, 0.0, 1.0, 0.0]
+        refs = np.array([s[1], s[1]])
+        s_next, _ = reduced[rate].step(np.array(s), refs, fault_vector({"left_bolt_offset": bolt,
+                                                                        "right_bolt_offset": bolt}), weights)
+        levels = np.asarray(s_next).ravel()[6:]
+        assert np.all((levels >= 0.0) & (levels <= 1.0)), levels
+
+    check()
