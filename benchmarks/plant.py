@@ -13,6 +13,7 @@ import scipy.sparse as sp
 from scipy.integrate import solve_ivp
 
 from benchmarks.common import emit, parser, pin_to_one_core
+from railswitch.models.faults import fault_vector
 from railswitch.models.plant import Plant
 from railswitch.models.reference import THROW_DURATION_S, throw_reference
 from railswitch.models.switch import SwitchSimulation
@@ -31,8 +32,7 @@ def scipy_bdf_two_throws(plant: Plant) -> tuple[float, np.ndarray]:
     """The same two throws with scipy's BDF, CasADi-evaluated right-hand side and Jacobian."""
     f = plant.ode_function()
     sim = SwitchSimulation(plant)
-    state, fault = sim.state, np.zeros(5)
-    fault[4] = 1.10
+    state, fault = sim.state, np.concatenate([fault_vector(), plant.variables()])
     rails = []
     start = time.perf_counter()
     for direction in ("left_to_right", "right_to_left"):

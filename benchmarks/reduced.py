@@ -52,7 +52,7 @@ def reduced_two_throws_seconds(reduced: ReducedSwitch, repeats: int = 30) -> flo
     """The same two throws: one rollout per throw, each from the end of the previous."""
     references = [reduced.reference_columns(throw_reference(d), SAMPLES) for d in ("left_to_right", "right_to_left")]
     rollout = reduced.rollout(SAMPLES)
-    fault = np.array([0.0, 0.0, 0.0, 0.0, 1.10])
+    fault = reduced.vector()
     s0 = reduced.initial_state(1.0, 0.0)
     times = []
     for _ in range(repeats):

@@ -32,7 +32,6 @@ from railswitch.services.commands.demo import INTERVAL_S, demo_scenario
 from railswitch.services.adapters.recordings import RecordingReader
 from railswitch.services.adapters.processes import ServiceProcesses, free_loopback_endpoint, wait_ready
 
-NOISE = 0.01
 # 20 switches at 2x: 4 throws/s, 2000 samples/s, about 1.4 of 2 cores, the diagnoser at 3/4 of its one
 # (GIL-bound) core; at 3x it saturates (p95 latency 7 s) and at 4x its backlog and memory grow.
 SPEED = 2.0
@@ -41,8 +40,8 @@ CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
 
 
 def soak_scenario(switches: int, throws: int) -> str:
-    """The demo's scenario (nominal first half, then fault mode k mod 4) with noise."""
-    return f"noise = {NOISE}\n" + demo_scenario(switches, throws)
+    """The demo's scenario: switches of the population, 1 % noise, commissioned, then fault mode k mod 5."""
+    return demo_scenario(switches, throws)
 
 
 @dataclass(frozen=True)

@@ -1,21 +1,26 @@
-"""Fault-parameter estimation for one throw (paper, section "Fault diagnosis").
+"""Parameter estimation for one throw (paper, section "Fault diagnosis").
 
-Each hypothesis (nominal, one per fault mode, joint) frees its parameters within
-the ranges of docs/contracts.md section 2 and fits the reduced switch model to the
-throw's measured current, angle and angular velocity, each scaled by its range,
-so the cost is the mean squared error of the three scaled signals. Bounded
-Levenberg-Marquardt on CasADi's exact Jacobian (Gauss-Newton Hessian), a coarse
-grid of cheap residual evaluations as global start where the error is
-multimodal (a bolt offset or an obstacle position moves the instant something
-happens, not only its size), standard deviations from the Gauss-Newton Hessian
-and the residual variance. The residual, its Jacobians (forward sensitivities
-along one, two or all fault parameters) and the grid's costs are CasADi
-Functions built (and compiled) once per estimator and reused for every throw.
-A fit stops when the MSE falls by less than TOLERANCE in an iteration, a change
-no decision can see, or when it can no longer fit better than another hypothesis.
+A hypothesis frees some of the reduced model's parameters (faults and the switch's own
+build and weather, models/reduced.py PARAMETERS) within bounds, holds the others, and
+fits the model to the throw's measured current, angle and angular velocity, each scaled
+by its range, so the cost is the mean squared error of the three scaled signals.
+Bounded Levenberg-Marquardt (models/least_squares.py) on exact Jacobians; where the
+error is multimodal (a bolt offset or an obstacle position moves the instant something
+happens, not only its size) the best of a grid of cheap residual evaluations starts it.
 
-The rail is not measured, so each throw starts from a given rail position: the
-end of the previous throw's fit, or the closed position.
+The model runs on its own grid (`MODEL_RATE_HZ`, one integration step per model sample)
+in compiled chunks of `CHUNK_SAMPLES`, as many as the throw needs; the residual compares
+the model, interpolated linearly at each sample's time, with the sample. So one compiled
+estimator serves throws of any length and any sample rate. Forward sensitivities ride
+through the chunks for the Jacobian.
+
+Standard deviations are the Gauss-Newton covariance with the residual variance, widened by
+N / N_eff: the residual of a reduced model is smooth model error, not white noise, and
+counts as N_eff independent samples (effective_samples). What the model's error does to
+an estimate beyond that is the caller's to add (models/switch_diagnosis.py).
+
+The rail is not measured, so each throw starts from a given rail position: the end of
+the previous throw's fit, or the closed position.
 """
 from __future__ import annotations
 
@@ -24,40 +29,50 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from railswitch.models.faults import FAULT_ORDER, fault_vector
 from railswitch.models.least_squares import levenberg_marquardt
-from railswitch.models.reduced import OUTPUTS, Compiler, ReducedSwitch
+from railswitch.models.reduced import OUTPUTS, PARAMETERS, STATES, Compiler, ReducedSwitch
 from railswitch.models.reference import Reference
 from railswitch.models.signals import SIGNAL_NAMES as MEASURED
 from railswitch.models.signals import MotorSignals
-from railswitch.schemas.faults import FAULT_PARAMETERS, MODE_PARAMETERS
+
+MODEL_RATE_HZ = 100.0  # the model's grid: a 10 ms step, as two substeps of a 50 Hz sample were
+CHUNK_SAMPLES = 200  # model samples per compiled call: 2 s
+GRID_CAPACITY = 40  # grid points evaluated in one mapped call: every hypothesis's grid of a throw at once
 # Order-one scales of the parameters for the solver.
 SCALES = {"left_bolt_offset": 0.05, "right_bolt_offset": 0.05, "bearing_friction": 5e3,
-          "obstacle_friction": 1e5, "obstacle_position": 0.05}
-# Derivative directions of the compiled linearisations: one- and two-parameter modes, the joint fit.
-LINEARISED_DIRECTIONS = (1, 2, len(FAULT_ORDER))
+          "obstacle_friction": 1e5, "obstacle_position": 0.05, "drive_friction_nm": 0.05,
+          "motor.coulomb_friction_nm": 0.05, "motor.torque_constant_nm_a": 0.01, "motor.resistance_ohm": 1.0,
+          "motor.supply_v": 10.0, "rail.chair_friction_coefficient": 0.01}
 TOLERANCE = 1e-4  # relative decrease of the MSE below which a fit has converged
-HYPOTHESES: dict[str, tuple[str, ...]] = {"nominal": (), **MODE_PARAMETERS, "joint": tuple(FAULT_ORDER)}
 # A bolt drives the blades in one direction only (the left bolt from left to right).
 DRIVING_BOLT = {"left_to_right": "left_bolt", "right_to_left": "right_bolt"}
-# Cheap global starts: residual-only evaluations on a coarse grid, refined once by evaluating the
-# neighbours half a step away along the parameter that moves where things happen (a bolt offset,
-# the obstacle position); the best point starts the solver. The bolt that does not drive this
-# throw (it shows only at the start of the throw) has no grid: it starts where earlier throws left it.
-GRID_STEP = {"left_bolt_offset": 0.02, "right_bolt_offset": 0.02, "obstacle_position": 0.02}
-_BOLT_GRID = np.arange(-0.02, 0.2001, GRID_STEP["left_bolt_offset"])
-_OBSTACLE_GRID = [{"obstacle_position": p, "obstacle_friction": f}
-                  for p in np.arange(1.02, 1.1801, GRID_STEP["obstacle_position"]) for f in (3e4, 1.5e5)]
-GRID_STARTS: dict[str, dict[str, list[dict[str, float]]]] = {
-    direction: {
-        bolt: [{MODE_PARAMETERS[bolt][0]: b} for b in _BOLT_GRID],
-        "missing_bearing": [{"bearing_friction": f} for f in (0.0, 1e3, 3e3, 6e3, 1e4)],
-        "obstacle": _OBSTACLE_GRID,
-    } for direction, bolt in DRIVING_BOLT.items()
-}
-_GRID_SIZES = {sum(len(points) for points in grids.values()) for grids in GRID_STARTS.values()}
-assert len(_GRID_SIZES) == 1, "one mapped grid Function serves both directions"
-_GRID_SIZE = _GRID_SIZES.pop()
+_MEASURED_ROWS = [OUTPUTS.index(name) for name in MEASURED]
+
+
+def effective_samples(residual: np.ndarray) -> float:
+    """Number of independent residuals: N / (1 + 2 sum of autocorrelations), summed over the signals.
+
+    The sum stops at the first pair of lags whose autocorrelations add up to a negative number
+    (Geyer's initial positive sequence, as in MCMC effective sample sizes).
+    """
+    total = 0.0
+    for column in np.atleast_2d(residual.T):
+        n = len(column)
+        centred = column - column.mean()
+        spectrum = np.fft.rfft(centred, 2 * n)
+        acf = np.fft.irfft(spectrum * np.conj(spectrum))[:n]
+        if acf[0] <= 0:
+            total += n
+            continue
+        acf = acf / acf[0]
+        tau = -1.0
+        for k in range(0, n - 1, 2):
+            pair = acf[k] + acf[k + 1]
+            if pair < 0:
+                break
+            tau += 2 * pair
+        total += n / max(tau, 1.0)
+    return total
 
 
 class InPlace:
@@ -88,16 +103,15 @@ class InPlace:
 
 @dataclass(frozen=True)
 class Measurement:
-    """One throw's N samples after its start, its direction and reference, and the state it starts from."""
+    """One throw's samples after its start (times from the start event), its direction and reference,
+    and the state it starts from."""
 
     direction: str
     reference: Reference
+    t_s: np.ndarray
     signals: MotorSignals
     start_angle_rad: float
     start_rail_m: float
-    # Faults known from earlier throws that this throw cannot show (the other direction's bolt):
-    # held at these values in every hypothesis that does not free them.
-    background: dict[str, float] = field(default_factory=dict)
 
     def scales(self) -> np.ndarray:
         """Range of each measured signal over the throw (the residual's scale)."""
@@ -105,166 +119,301 @@ class Measurement:
 
 
 @dataclass(frozen=True)
+class HypothesisSpec:
+    """What one hypothesis frees (with bounds) and holds; parameters neither freed nor held are nominal.
+
+    A free parameter with a prior (mean, standard deviation) pays for straying from it: the fit is the
+    maximum a posteriori one, MSE + w * sum(((value - mean) / std)^2), w the variance of the throw's
+    measurement noise over its number of residuals (a parameter k standard deviations off costs what
+    k^2 independent residuals' worth of misfit would, which is also the scale of the F test)."""
+
+    mode: str  # nominal, a fault mode, or joint
+    free: dict[str, tuple[float, float]]
+    fixed: dict[str, float] = field(default_factory=dict)
+    grid: tuple[dict[str, float], ...] = ()  # starting points to pick the best of (free parameters only)
+    prior: dict[str, tuple[float, float]] = field(default_factory=dict)
+    log_prior: tuple[str, ...] = ()  # parameters whose prior is on log(value) (a positive, skewed spread)
+
+
+@dataclass(frozen=True)
 class Estimate:
-    """One hypothesis fitted: its free parameters, their standard deviations and the fit's MSE."""
+    """One hypothesis fitted: the values of its free parameters, their standard deviations (the fit's own,
+    widened for correlated residuals), every parameter's value, and the fit's MSE and residual."""
 
     mode: str
     params: dict[str, float]
     std: dict[str, float]
-    mse: float
+    values: dict[str, float]  # every parameter at the fit (held ones included)
+    mse: float  # of the data alone
+    objective: float  # MSE plus what the priors charge: what hypotheses are compared by
     iterations: int
     residual: np.ndarray  # scaled residuals of current, angle and velocity, one column each
+    effective_samples: float
 
 
-def _estimate(mode: str, params: dict, std: dict, r: np.ndarray, iterations: int) -> Estimate:
-    """An Estimate from the solver's residual vector (divided by sqrt(3N), stacked signal by signal)."""
-    return Estimate(mode, params, std, float(r @ r), iterations, r.reshape(len(MEASURED), -1).T * np.sqrt(r.size))
+@dataclass(frozen=True)
+class _Throw:
+    """A measurement prepared for the model: its start state, model samples needed, interpolation weights."""
 
-
-def _bounds(names) -> tuple[np.ndarray, np.ndarray]:
-    return (np.array([FAULT_PARAMETERS[n].low for n in names]), np.array([FAULT_PARAMETERS[n].high for n in names]))
+    s0: np.ndarray
+    chunks: int
+    refs: list[np.ndarray]  # per chunk, 2 x CHUNK_SAMPLES
+    index: np.ndarray  # per sample: the model sample at or before it (0: the start)
+    fraction: np.ndarray  # per sample: how far towards the next model sample
+    measured: np.ndarray  # N x 3
+    inverse_scale: np.ndarray  # 3
 
 
 class ThrowEstimator:
-    """Fits every hypothesis to throws of `samples` samples; build once, call per throw."""
+    """Fits hypotheses to throws of any length and rate; build once (compiled once), call per throw."""
 
-    def __init__(self, reduced: ReducedSwitch, samples: int, compiler: Compiler | None = None):
-        """`compiler` turns the estimator's Functions into machine code (None: interpreted)."""
+    def __init__(self, reduced: ReducedSwitch, compiler: Compiler | None = None, directions: tuple[int, ...] = (5, 7, 9)):
+        """`reduced` must run at MODEL_RATE_HZ; `directions` are the numbers of free parameters the compiled
+        Jacobians serve (a hypothesis uses the smallest that fits); `compiler` makes machine code."""
+        if reduced.rate_hz != MODEL_RATE_HZ:
+            raise ValueError(f"the estimator's model runs at {MODEL_RATE_HZ:g} samples/s, not {reduced.rate_hz:g}")
         self.reduced = reduced
-        self.samples = samples
-        theta = ca.MX.sym("theta", len(FAULT_ORDER))
-        s0 = ca.MX.sym("s0", reduced.step.size1_in(0))
-        refs = ca.MX.sym("refs", 2, samples)
-        measured = ca.MX.sym("measured", samples, len(MEASURED))
-        inverse_scale = ca.MX.sym("inverse_scale", 1, len(MEASURED))
-        inputs = [theta, s0, refs, measured, inverse_scale]
-
-        def scaled(signals):
-            """N x 3 signals scaled, stacked signal by signal and divided by sqrt(3N), so that r'r is
-            the mean squared error of the scaled signals."""
-            return ca.vec(signals * ca.repmat(inverse_scale, samples, 1)) / np.sqrt(samples * len(MEASURED))
-
-        def measured_rows(outputs):
-            """The measured signals of a 6 x N block of outputs (or of their derivatives), N x 3."""
-            return ca.horzcat(*[outputs[OUTPUTS.index(name), :].T for name in MEASURED])
-
-        y, _ = reduced._rollout(samples)(s0, refs, theta, reduced.weights)
-        residual = scaled(measured_rows(y) - measured)
-        functions = [ca.Function("throw_residual", inputs, [residual])]
-        for k in LINEARISED_DIRECTIONS:  # residual and its derivative along k fault directions
-            seeds = ca.MX.sym("seeds", len(FAULT_ORDER), k)
-            y, y_dot = reduced.sensitivity_rollout(samples, k)(s0, refs, theta, seeds, reduced.weights)
-            blocks = [y_dot[j * len(OUTPUTS):(j + 1) * len(OUTPUTS), :] for j in range(k)]
-            jacobian = ca.horzcat(*[scaled(measured_rows(block)) for block in blocks])
-            functions.append(ca.Function(f"throw_linearised{k}", [*inputs, seeds],
-                                         [scaled(measured_rows(y) - measured), jacobian]))
-        cost = ca.Function("throw_cost", inputs, [ca.sumsqr(residual)])
-        # Every grid start in one call; only theta is mapped, the throw's data is shared.
-        functions.append(cost.map("throw_grid", "serial", _GRID_SIZE, list(range(1, len(inputs))), []))
+        self.directions = tuple(sorted(directions))
+        n, p, c = len(STATES), len(PARAMETERS), CHUNK_SAMPLES
+        s0, refs = ca.MX.sym("s0", n), ca.MX.sym("refs", 2, c)
+        theta, w = ca.MX.sym("theta", p), ca.MX.sym("w", reduced.representation.size)
+        states, outputs = reduced.step.mapaccum("chunk_acc", c)(s0, refs, ca.repmat(theta, 1, c), ca.repmat(w, 1, c))
+        chunk = ca.Function("model_chunk", [s0, refs, theta, w], [states[:, -1], outputs])
+        measured = ca.Function("measured_chunk", [s0, refs, theta, w], [states[:, -1], outputs[_MEASURED_ROWS, :]])
+        functions = [chunk, measured.map("model_chunk_grid", "serial", GRID_CAPACITY, [1, 3], [])]
+        for k in self.directions:
+            aug, seeds = ca.MX.sym("s_dot", n * (1 + k)), ca.MX.sym("seeds", p * k)
+            step = reduced.sensitivity_step(k)
+            states, outputs = step.mapaccum("sensitivity_acc", c)(aug, refs, ca.repmat(theta, 1, c),
+                                                                  ca.repmat(seeds, 1, c), ca.repmat(w, 1, c))
+            rows = [j * len(OUTPUTS) + i for j in range(1, k + 1) for i in _MEASURED_ROWS]  # derivative rows
+            functions.append(ca.Function(f"sensitivity_chunk{k}", [aug, refs, theta, seeds, w],
+                                         [states[:, -1], outputs[_MEASURED_ROWS, :], outputs[rows, :]]))
         if compiler is not None:
             functions = compiler(functions)
-        self._residual, *linearised, self._grid = [InPlace(f) for f in functions]
-        self._linearised = dict(zip(LINEARISED_DIRECTIONS, linearised))
+        self._chunk, self._grid, *sensitivities = [InPlace(f) for f in functions]
+        self._sensitivity = dict(zip(self.directions, sensitivities))
+        self.weights = reduced.weights
 
-    def _data(self, m: Measurement) -> tuple:
+    # -- the model over one throw -------------------------------------------------------------
+    def prepare(self, m: Measurement) -> _Throw:
+        dt = 1.0 / MODEL_RATE_HZ
+        position = np.asarray(m.t_s, dtype=float) / dt
+        index = np.floor(position + 1e-9).astype(int)
+        fraction = np.clip(position - index, 0.0, 1.0)
+        fraction[fraction < 1e-9] = 0.0
+        chunks = max(1, int(np.ceil((index.max() + 1) / CHUNK_SAMPLES)))
+        refs = [self.reduced.reference_columns(m.reference, CHUNK_SAMPLES, first=c * CHUNK_SAMPLES) for c in range(chunks)]
         s0 = self.reduced.initial_state(m.start_rail_m, m.start_angle_rad)
-        return s0, self.reduced.reference_columns(m.reference, self.samples), m.signals.matrix(), 1.0 / m.scales()[None, :]
+        return _Throw(s0, chunks, refs, index, fraction, m.signals.matrix(), 1.0 / m.scales())
 
-    def _residuals(self, theta: np.ndarray, data: tuple) -> np.ndarray:
-        return self._residual(theta, *data)[0].ravel()
+    def _at_samples(self, y: np.ndarray, throw: _Throw) -> np.ndarray:
+        """Model values (rows x model samples, the start first) interpolated at the samples' times: rows x N."""
+        nxt = np.minimum(throw.index + 1, y.shape[1] - 1)
+        return y[:, throw.index] * (1.0 - throw.fraction) + y[:, nxt] * throw.fraction
 
-    def _cost(self, theta: np.ndarray, data: tuple) -> float:
-        r = self._residuals(theta, data)
-        cost = float(r @ r)
-        return cost if np.isfinite(cost) else np.inf
+    @staticmethod
+    def _start_outputs(throw: _Throw, names=MEASURED) -> np.ndarray:
+        """The outputs at the start (at rest: no drive force)."""
+        return np.array([throw.s0[STATES.index(name)] if name in STATES else 0.0 for name in names])
 
-    def _linearise(self, theta: np.ndarray, data: tuple, index: list[int]) -> tuple[np.ndarray, np.ndarray]:
+    def all_outputs(self, theta: np.ndarray, throw: _Throw) -> np.ndarray:
+        """Every output of the model (OUTPUTS), 6 x (1 + model samples), the start first."""
+        state, blocks = throw.s0, [self._start_outputs(throw, OUTPUTS)[:, None]]
+        for refs in throw.refs:
+            state, y = self._chunk(state, refs, theta, self.weights)
+            blocks.append(y)
+        return np.hstack(blocks)
+
+    def outputs(self, theta: np.ndarray, throw: _Throw) -> np.ndarray:
+        """The measured outputs of the model, 3 x (1 + model samples), the start first."""
+        return self.all_outputs(theta, throw)[_MEASURED_ROWS]
+
+    def _scaled(self, differences: np.ndarray, throw: _Throw) -> np.ndarray:
+        """3 x N differences scaled, stacked signal by signal, over sqrt(3N): r'r is the MSE."""
+        return (differences * throw.inverse_scale[:, None]).ravel() / np.sqrt(differences.size)
+
+    def residuals(self, theta: np.ndarray, throw: _Throw) -> np.ndarray:
+        return self._scaled(self._at_samples(self.outputs(theta, throw), throw) - throw.measured.T, throw)
+
+    def cost(self, theta: np.ndarray, throw: _Throw) -> float:
+        r = self.residuals(theta, throw)
+        value = float(r @ r)
+        return value if np.isfinite(value) else np.inf
+
+    def costs(self, thetas: np.ndarray, throw: _Throw) -> np.ndarray:
+        """r'r of many parameter vectors (columns), GRID_CAPACITY to a mapped call."""
+        out = []
+        for first in range(0, thetas.shape[1], GRID_CAPACITY):
+            batch = thetas[:, first:first + GRID_CAPACITY]
+            count = batch.shape[1]
+            batch = np.hstack([batch, np.repeat(batch[:, :1], GRID_CAPACITY - count, axis=1)])
+            states = np.repeat(throw.s0[:, None], GRID_CAPACITY, axis=1)
+            start = np.repeat(self._start_outputs(throw)[:, None, None], GRID_CAPACITY, axis=2)
+            blocks = [start]
+            for refs in throw.refs:
+                states, y = self._grid(states, refs, batch, self.weights)
+                blocks.append(y.reshape(len(MEASURED), CHUNK_SAMPLES, GRID_CAPACITY, order="F"))
+            y = np.concatenate(blocks, axis=1)  # 3 x samples x G
+            for g in range(count):
+                r = self._scaled(self._at_samples(y[:, :, g], throw) - throw.measured.T, throw)
+                value = float(r @ r)
+                out.append(value if np.isfinite(value) else np.inf)
+        return np.array(out)
+
+    def linearise(self, theta: np.ndarray, throw: _Throw, index: list[int]) -> tuple[np.ndarray, np.ndarray]:
         """Residual and its Jacobian columns for the parameters at `index`."""
-        k = min(d for d in LINEARISED_DIRECTIONS if d >= len(index))
-        seeds = np.zeros((len(FAULT_ORDER), k))
+        k = min((d for d in self.directions if d >= len(index)), default=None)
+        if k is None:
+            raise ValueError(f"{len(index)} free parameters; the estimator serves at most {self.directions[-1]}")
+        seeds = np.zeros((len(PARAMETERS), k))
         seeds[index, range(len(index))] = 1.0
-        r, j = self._linearised[k](theta, *data, seeds)
-        return r.ravel(), j[:, :len(index)]
+        n = len(STATES)
+        aug = np.concatenate([throw.s0, np.zeros(n * k)])
+        ys, dys = [self._start_outputs(throw)[:, None]], [np.zeros((3 * k, 1))]
+        for refs in throw.refs:
+            aug, y, dy = self._sensitivity[k](aug, refs, theta, seeds, self.weights)
+            ys.append(y)
+            dys.append(dy)
+        y, dy = np.hstack(ys), np.hstack(dys)
+        r = self._scaled(self._at_samples(y, throw) - throw.measured.T, throw)
+        columns = [self._scaled(self._at_samples(dy[3 * j:3 * j + 3], throw), throw) for j in range(len(index))]
+        return r, np.column_stack(columns)
 
-    def fit(self, mode: str, m: Measurement, data: tuple | None = None, start: dict[str, float] | None = None,
-            iterations: int = 20, rival: float = np.inf) -> Estimate:
-        """Fit one hypothesis from `start` (warm start or grid point; nominal elsewhere).
+    # -- hypotheses ------------------------------------------------------------------------
+    def fit(self, spec: HypothesisSpec, throw: _Throw, start: dict[str, float] | None = None, iterations: int = 20,
+            rival: float = np.inf, prior_weight: float = 0.0) -> Estimate:
+        """Fit one hypothesis from `start` (a warm start or its grid's best point; elsewhere held or nominal).
 
-        With `rival` (the lowest MSE another hypothesis reached), the fit stops early once it is above
-        the rival and, at its latest rate of decrease, would still be above it after its remaining
-        iterations: a hypothesis that cannot fit best is not refined further.
+        With `rival` (the lowest objective another hypothesis reached), the fit stops early once it is
+        above the rival and, at its latest rate of decrease, would still be above it after its remaining
+        iterations: a hypothesis that cannot fit best is not refined further. `prior_weight` is w of
+        HypothesisSpec.
         """
-        data = data if data is not None else self._data(m)
-        free = list(HYPOTHESES[mode])
-        theta = fault_vector({**m.background, **{k: v for k, v in (start or {}).items() if k in free}})
-        if not free:
-            return _estimate(mode, {}, {}, self._residuals(theta, data), 0)
-        index = [FAULT_ORDER.index(n) for n in free]
-        low, high = _bounds(free)
+        free = list(spec.free)
+        low = np.array([spec.free[n][0] for n in free])
+        high = np.array([spec.free[n][1] for n in free])
+        base = {**spec.fixed, **{n: v for n, v in (start or {}).items() if n in spec.free}}
+        theta = self.reduced.vector(base)
+        index = [PARAMETERS.index(n) for n in free]
+        theta[index] = np.clip(theta[index], low, high)
+        with_prior = [i for i, n in enumerate(free) if n in spec.prior]
+        mean = np.array([spec.prior[free[i]][0] for i in with_prior])
+        root_weight = np.sqrt(prior_weight) / np.array([spec.prior[free[i]][1] for i in with_prior])
+        logs = np.array([free[i] in spec.log_prior for i in with_prior], dtype=bool)
+
+        def transformed(values: np.ndarray) -> np.ndarray:
+            picked = values[with_prior]
+            return np.where(logs, np.log(np.maximum(picked, 1e-300)), picked)
+
+        def penalty(values: np.ndarray) -> np.ndarray:  # the priors as extra residuals
+            return root_weight * (transformed(values) - mean)
 
         def at(values: np.ndarray) -> np.ndarray:
             full = theta.copy()
             full[index] = values
             return full
 
+        if not free:
+            r = self.residuals(theta, throw)
+            return self._estimate(spec.mode, theta, [], {}, r, float(r @ r), 0)
+
+        def linearise(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            r, jacobian = self.linearise(at(z), throw, index)
+            prior_rows = np.zeros((len(with_prior), len(free)))
+            slope = np.where(logs, 1.0 / np.maximum(z[with_prior], 1e-300), 1.0)
+            prior_rows[range(len(with_prior)), with_prior] = root_weight * slope
+            return np.concatenate([r, penalty(z)]), np.vstack([jacobian, prior_rows])
+
+        def objective(z: np.ndarray) -> float:
+            return self.cost(at(z), throw) + float(np.sum(penalty(z) ** 2))
+
         def keep_going(cost: float, decrease: float, k: int) -> bool:  # can it still beat the rival?
             return cost * (1.0 - decrease) ** (iterations - k) <= rival
 
-        solution = levenberg_marquardt(lambda z: self._linearise(at(z), data, index), theta[index],
-                                       cost=lambda z: self._cost(at(z), data), lower=low, upper=high,
+        solution = levenberg_marquardt(linearise, theta[index], cost=objective, lower=low, upper=high,
                                        scale=np.array([SCALES[n] for n in free]), iterations=iterations,
                                        tolerance=TOLERANCE, keep_going=keep_going)
-        return _estimate(mode, {n: float(v) for n, v in zip(free, solution.z)},
-                         self._std(solution.jacobian, solution.cost, free), solution.residual, solution.iterations)
+        data_rows = solution.residual.size - len(with_prior)
+        r = solution.residual[:data_rows]
+        std = self._std(solution.jacobian, r, low, high, prior_weight)
+        return self._estimate(spec.mode, at(solution.z), free, dict(zip(free, std)), r, solution.cost,
+                              solution.iterations)
 
-    def _std(self, jacobian: np.ndarray, cost: float, free: list[str]) -> dict[str, float]:
-        """Gauss-Newton covariance: residual variance times (J'J)^-1; no information means the range."""
-        n = jacobian.shape[0]
-        variance = cost * n / max(n - len(free), 1)  # per scaled sample (r is divided by sqrt(n))
-        low, high = _bounds(free)
-        try:
-            covariance = variance / n * np.linalg.inv(jacobian.T @ jacobian)
-            std = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
-        except np.linalg.LinAlgError:
-            std = high - low
-        std = np.where(np.isfinite(std), np.minimum(std, high - low), high - low)
-        return {name: float(s) for name, s in zip(free, std)}
-
-    def grid_starts(self, m: Measurement, data: tuple) -> dict[str, dict[str, float]]:
-        """The best point of each mode's coarse grid, by residual alone (all grids in one call)."""
-        grids = GRID_STARTS[m.direction]
-        points = [p for mode_points in grids.values() for p in mode_points]
-        thetas = np.column_stack([fault_vector({**m.background, **p}) for p in points])
-        costs = self._grid(thetas, *data)[0].ravel()
-        costs = np.where(np.isfinite(costs), costs, np.inf)
-        best, lowest, first = {}, {}, 0
-        for mode, mode_points in grids.items():
-            k = int(np.argmin(costs[first:first + len(mode_points)]))
-            best[mode], lowest[mode] = mode_points[k], costs[first + k]
-            first += len(mode_points)
-        for mode, point in list(best.items()):  # halve the step around the best point
-            for name in [name for name in GRID_STEP if name in point]:
-                for value in (point[name] - GRID_STEP[name] / 2, point[name] + GRID_STEP[name] / 2):
-                    if FAULT_PARAMETERS[name].low <= value <= FAULT_PARAMETERS[name].high:
-                        neighbour = {**point, name: value}
-                        cost = self._cost(fault_vector({**m.background, **neighbour}), data)
-                        if cost < lowest[mode]:
-                            best[mode], lowest[mode] = neighbour, cost
-        return best
-
-    def fit_all(self, m: Measurement) -> dict[str, Estimate]:
-        """Every hypothesis (grid-started), then the joint fit warm-started from the best of them."""
-        data = self._data(m)
-        out = {"nominal": self.fit("nominal", m, data)}
-        starts = self.grid_starts(m, data)
-        for mode in MODE_PARAMETERS:
-            rival = min(estimate.mse for estimate in out.values())
-            out[mode] = self.fit(mode, m, data, starts.get(mode), rival=rival)
-        best = min(MODE_PARAMETERS, key=lambda mode: out[mode].mse)
-        out["joint"] = self.fit("joint", m, data, out[best].params)
+    @staticmethod
+    def _with(theta: np.ndarray, point: dict[str, float]) -> np.ndarray:
+        out = theta.copy()
+        for name, value in point.items():
+            out[PARAMETERS.index(name)] = value
         return out
 
-    def simulate(self, m: Measurement, faults: dict[str, float]) -> dict[str, np.ndarray]:
-        """The reduced model's outputs and final state for this throw under `faults` (and the background)."""
-        s0 = self.reduced.initial_state(m.start_rail_m, m.start_angle_rad)
-        return self.reduced.simulate(s0, m.reference, self.samples, {**m.background, **faults})
+    def _estimate(self, mode: str, theta: np.ndarray, free: list[str], std: dict[str, float], r: np.ndarray,
+                  objective: float, iterations: int) -> Estimate:
+        values = dict(zip(PARAMETERS, (float(v) for v in theta)))
+        residual = r.reshape(len(MEASURED), -1).T * np.sqrt(r.size)
+        return Estimate(mode, {n: values[n] for n in free}, std, values, float(r @ r), objective, iterations, residual,
+                        effective_samples(residual))
+
+    @staticmethod
+    def _std(jacobian: np.ndarray, r: np.ndarray, low: np.ndarray, high: np.ndarray, prior_weight: float) -> np.ndarray:
+        """Laplace covariance of the data and the priors (the priors' rows follow the data's in `jacobian`).
+
+        The data's information is J'J over the residual variance, counted on N_eff effective samples
+        rather than N (a residual that is smooth model error rather than white noise carries less); a
+        prior's is 1 / std^2. No information means the range."""
+        n = r.size
+        data, prior = jacobian[:n], jacobian[n:]
+        variance = float(r @ r) * n / max(n - jacobian.shape[1], 1)  # per scaled sample (r is divided by sqrt(n))
+        n_eff = max(effective_samples(r.reshape(len(MEASURED), -1).T), jacobian.shape[1] + 1.0)
+        information = (n_eff / max(variance, 1e-300)) * (data.T @ data)
+        if len(prior) and prior_weight > 0:
+            information = information + (prior.T @ prior) / prior_weight
+        std = np.sqrt(np.clip(np.diag(np.linalg.pinv(information)), 0.0, None))
+        return np.where(np.isfinite(std) & (std > 0), np.minimum(std, high - low), high - low)
+
+    @staticmethod
+    def noise_weight(throw: _Throw) -> float:
+        """The white measurement noise's variance (scaled, per residual, from the median second difference
+        of each signal) over the number of residuals: the least w of HypothesisSpec."""
+        second = np.diff(throw.measured * throw.inverse_scale[None, :], n=2, axis=0)
+        noise = np.median(np.abs(second), axis=0) / (0.6745 * np.sqrt(6.0))  # a white sequence's MAD, per signal
+        return float(np.mean(noise**2)) / throw.measured.size
+
+    def grid_starts(self, specs: list[HypothesisSpec], base: dict[str, float], throw: _Throw) -> dict[str, dict]:
+        """Each hypothesis's best grid point (by residual alone, every grid of the throw in one batch), with
+        `base` (the nominal fit) everywhere else."""
+        points = [(spec.mode, {**base, **spec.fixed, **point}) for spec in specs for point in spec.grid]
+        if not points:
+            return {}
+        costs = self.costs(np.column_stack([self.reduced.vector(p) for _, p in points]), throw)
+        best: dict[str, tuple[float, dict]] = {}
+        for (mode, point), cost in zip(points, costs):
+            if mode not in best or cost < best[mode][0]:
+                best[mode] = (cost, point)
+        return {mode: point for mode, (_, point) in best.items()}
+
+    def fit_all(self, m: Measurement, specs: dict[str, HypothesisSpec], model_weight: float = 0.0) -> dict[str, Estimate]:
+        """The nominal hypothesis first; each fault mode started from the nominal fit (its own parameters from
+        their grid) and stopped once it cannot beat the best so far; joint last, from the best mode.
+
+        Every hypothesis of the throw shares one prior weight, so their objectives compare: the larger of
+        the throw's noise (noise_weight) and `model_weight`, the residual variance over the effective number
+        of samples that the model's own error leaves on a healthy throw."""
+        throw = self.prepare(m)
+        weight = max(self.noise_weight(throw), model_weight)
+        out = {"nominal": self.fit(specs["nominal"], throw, prior_weight=weight)}
+        nominal = out["nominal"].values
+        modes = [mode for mode in specs if mode not in ("nominal", "joint")]
+        starts = self.grid_starts([specs[mode] for mode in modes], nominal, throw)
+        for mode in modes:
+            rival = min(estimate.objective for estimate in out.values())
+            out[mode] = self.fit(specs[mode], throw, starts.get(mode, nominal), rival=rival, prior_weight=weight)
+        if "joint" in specs:
+            best = min(modes, key=lambda mode: out[mode].objective) if modes else "nominal"
+            out["joint"] = self.fit(specs["joint"], throw, out[best].values, prior_weight=weight)
+        return out
+
+    def simulate(self, m: Measurement, values: dict[str, float]) -> dict[str, np.ndarray]:
+        """The model's outputs at the samples' times under `values` (nominal elsewhere)."""
+        throw = self.prepare(m)
+        return dict(zip(OUTPUTS, self._at_samples(self.all_outputs(self.reduced.vector(values), throw), throw)))

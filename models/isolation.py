@@ -9,8 +9,13 @@ positive sequence). With white measurement noise that number is the sample
 count; with a smooth model-error residual it is small and the test strict. The
 threshold is therefore derived from the measured residual, never tuned per case.
 
-A bolt only drives the blades in one direction (the left bolt from left to
-right), so a throw can show only the bolt that drives it.
+A fault persists, so its evidence adds up over the throws that can see it: the
+statistics of the last k such throws (k up to EVIDENCE_THROWS) are summed and held
+against the chi-square critical value of their summed degrees of freedom at the
+same false-alarm rate (shared between the k tried), so a fault that each of two
+throws shows at two thirds of the one-throw threshold is found. A bolt only drives
+the blades in one direction (the left bolt from left to right), so a throw can show
+only the bolt that drives it.
 """
 from __future__ import annotations
 
@@ -19,51 +24,41 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from railswitch.models.estimation import DRIVING_BOLT, Estimate, Measurement, ThrowEstimator
+from railswitch.models.estimation import DRIVING_BOLT, Estimate, effective_samples
 from railswitch.schemas.faults import MODE_PARAMETERS
 
 FALSE_ALARM_RATE = 1e-3  # per fault mode and throw, under the nominal hypothesis
 MODEL_ERROR_MARGIN = 2.0  # model error varies from throw to throw: allow twice what commissioning saw
 OTHER_DIRECTION = {"left_to_right": "right_to_left", "right_to_left": "left_to_right"}
-
-
-def effective_samples(residual: np.ndarray) -> float:
-    """Number of independent residuals: N / (1 + 2 sum of autocorrelations), summed over the signals.
-
-    The sum stops at the first pair of lags whose autocorrelations add up to a
-    negative number (Geyer's initial positive sequence, as in MCMC effective
-    sample sizes).
-    """
-    total = 0.0
-    for column in np.atleast_2d(residual.T):
-        n = len(column)
-        centred = column - column.mean()
-        spectrum = np.fft.rfft(centred, 2 * n)
-        acf = np.fft.irfft(spectrum * np.conj(spectrum))[:n]
-        if acf[0] <= 0:
-            total += n
-            continue
-        acf = acf / acf[0]
-        tau = -1.0
-        for k in range(0, n - 1, 2):
-            pair = acf[k] + acf[k + 1]
-            if pair < 0:
-                break
-            tau += 2 * pair
-        total += n / max(tau, 1.0)
-    return total
+EVIDENCE_THROWS = 3  # the most recent throws whose evidence for a mode is added up
 
 
 @dataclass(frozen=True)
 class Evidence:
-    """How much better a fault mode fits than nominal: F statistic over its critical value."""
+    """How much better a fault mode fits than nominal: its test statistic over the critical value (the best
+    over the last throws that saw it), and this throw's statistic (p times F, chi-square-like) to add up later."""
 
     mode: str
     ratio: float  # above 1: detected
+    statistic: float = 0.0
+    dof: int = 1
 
     @property
     def detected(self) -> bool:
         return self.ratio > 1.0
+
+
+def accumulated(latest: Evidence, earlier: list[Evidence]) -> Evidence:
+    """`latest` with its ratio the best of this throw's own test and the sums over it and the throws before
+    (most recent first), each against chi-square at FALSE_ALARM_RATE shared by the windows tried."""
+    best = latest.ratio
+    windows = min(len(earlier), EVIDENCE_THROWS - 1)
+    total, dof = latest.statistic, latest.dof
+    for previous in earlier[:windows]:
+        total, dof = total + previous.statistic, dof + previous.dof
+        critical = stats.chi2.ppf(1.0 - FALSE_ALARM_RATE / EVIDENCE_THROWS, dof)
+        best = max(best, total / critical)
+    return Evidence(latest.mode, best, latest.statistic, latest.dof)
 
 
 def evidence(estimates: dict[str, Estimate], mode: str, model_gain: float = 0.0) -> Evidence:
@@ -75,28 +70,12 @@ def evidence(estimates: dict[str, Estimate], mode: str, model_gain: float = 0.0)
     fitted, nominal = estimates[mode], estimates["nominal"]
     p = len(MODE_PARAMETERS[mode])
     n = effective_samples(fitted.residual)
-    gain = nominal.mse - fitted.mse - MODEL_ERROR_MARGIN * model_gain
+    gain = nominal.objective - fitted.objective - MODEL_ERROR_MARGIN * model_gain
     if n <= p + 1 or fitted.mse <= 0:
-        return Evidence(mode, 0.0 if gain <= 0 else np.inf)
+        return Evidence(mode, 0.0 if gain <= 0 else np.inf, 0.0 if gain <= 0 else np.inf, p)
     f = max(gain, 0.0) / p / (fitted.mse / (n - p))
-    critical = stats.f.ppf(1.0 - FALSE_ALARM_RATE, p, n - p)
-    return Evidence(mode, f / critical)
-
-
-@dataclass(frozen=True)
-class ThrowVerdict:
-    """What one throw says: its most likely mode (or nominal) and the evidence for each."""
-
-    direction: str
-    mode: str
-    evidence: dict[str, Evidence]
-    estimates: dict[str, Estimate]
-    end_rail_m: float  # where the decided hypothesis leaves the blades
-    fitted: dict[str, np.ndarray]  # the decided hypothesis's outputs at the samples after the start
-
-    @property
-    def strength(self) -> float:
-        return self.evidence[self.mode].ratio if self.mode in self.evidence else 0.0
+    critical = stats.f.ppf(1.0 - FALSE_ALARM_RATE / EVIDENCE_THROWS, p, n - p)
+    return Evidence(mode, f / critical, p * f, p)
 
 
 def candidate_modes(direction: str) -> list[str]:
@@ -104,25 +83,18 @@ def candidate_modes(direction: str) -> list[str]:
     return [m for m in MODE_PARAMETERS if m != DRIVING_BOLT[OTHER_DIRECTION[direction]]]
 
 
-def judge(direction: str, estimates: dict[str, Estimate],
-          model_gains: dict[str, float] | None = None) -> tuple[str, dict[str, Evidence]]:
-    """The detected mode with the smallest MSE, or nominal when none is detected."""
+def healthy_gains(estimates: dict[str, Estimate]) -> dict[str, float]:
+    """What each mode's fit gains over the nominal one (0 at least): on a healthy throw, model error it absorbs."""
+    return {mode: max(estimates["nominal"].objective - estimates[mode].objective, 0.0) for mode in estimates
+            if mode in MODE_PARAMETERS}
+
+
+def judge(direction: str, estimates: dict[str, Estimate], model_gains: dict[str, float] | None = None,
+          earlier: dict[str, list[Evidence]] | None = None) -> tuple[str, dict[str, Evidence]]:
+    """The detected mode with the best fit, or nominal when none is detected; `earlier` holds each mode's
+    evidence from the switch's previous throws that could see it, most recent first."""
     gains = model_gains or {}
-    found = {m: evidence(estimates, m, gains.get(m, 0.0)) for m in candidate_modes(direction)}
+    found = {m: accumulated(evidence(estimates, m, gains.get(m, 0.0)), (earlier or {}).get(m, []))
+             for m in candidate_modes(direction) if m in estimates}
     detected = [m for m, e in found.items() if e.detected]
-    return (min(detected, key=lambda m: estimates[m].mse) if detected else "nominal"), found
-
-
-def commissioning_gains(estimator: ThrowEstimator, healthy: list[Measurement]) -> dict[str, dict[str, float]]:
-    """Per direction and mode: how much the mode's fit improves on healthy throws (one or more each way).
-
-    Like commissioning a point machine: throw the healthy switch each way and note how much of
-    the reduced model's error each fault mode can absorb.
-    """
-    gains: dict[str, dict[str, float]] = {}
-    for m in healthy:
-        estimates = estimator.fit_all(m)
-        gain = {mode: max(estimates["nominal"].mse - estimates[mode].mse, 0.0) for mode in MODE_PARAMETERS}
-        seen = gains.setdefault(m.direction, dict.fromkeys(MODE_PARAMETERS, 0.0))
-        gains[m.direction] = {mode: max(seen[mode], gain[mode]) for mode in MODE_PARAMETERS}
-    return gains
+    return (min(detected, key=lambda m: estimates[m].objective) if detected else "nominal"), found

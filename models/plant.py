@@ -4,10 +4,15 @@ Assembles motor, speed controller, crank drive, adjuster and finite-element
 rails with the fault components into one stiff ODE, written once in CasADi
 SX and integrated with SUNDIALS CVODES (BDF, sparse direct Newton solver on
 the exact Jacobian from automatic differentiation).
+
+A switch's own build and environment (schemas/plant.py: winding resistance,
+supply, friction in the point machine and on the chairs, the heel's stiffness)
+are inputs of the same equations, like the faults, so one compiled plant
+serves every switch of a fleet and a cold night costs nothing to simulate.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 
 import casadi as ca
@@ -20,6 +25,9 @@ from railswitch.models.faults import FAULT_ORDER, ObstacleParams, bearing_weight
 from railswitch.models.motor import ControllerParams, MotorParams, controller, motor_derivatives
 from railswitch.models.rail_beam import RailBeam, RailParams
 from railswitch.models.reference import Reference
+from railswitch.schemas.plant import PLANT_PARAMETERS
+
+PLANT_VARIABLES: tuple[str, ...] = tuple(PLANT_PARAMETERS)  # a switch's own parameters, inputs of the plant
 
 SIGNALS = ("current_a", "angle_rad", "velocity_rad_s", "rail_position_m", "rail_velocity_m_s",
            "rail_acceleration_m_s2", "drive_force_n", "rod_position_m")
@@ -48,6 +56,11 @@ class Trajectory:
         return self.signals[name]
 
 
+def nominal_values(params: PlantParams) -> dict[str, float]:
+    """The plant variables as `params` has them (group.field)."""
+    return {name: float(getattr(getattr(params, name.split(".")[0]), name.split(".")[1])) for name in PLANT_VARIABLES}
+
+
 class Plant:
     """State layout, symbolic equations and integrators of the high-fidelity model."""
 
@@ -60,6 +73,7 @@ class Plant:
                       "velocity_rad_s": 2 * self.nodes + 2, "integral_v": 2 * self.nodes + 3,
                       "hook_left": 2 * self.nodes + 4, "hook_right": 2 * self.nodes + 5}
         self.tolerances = {"reltol": reltol, "abstol": abstol}
+        self.nominal = nominal_values(params)
         self._build()
 
     # -- equations ---------------------------------------------------------------------------
@@ -67,12 +81,19 @@ class Plant:
         p, n = self.params, self.nodes
         x = ca.SX.sym("x", self.n_states)
         theta = ca.SX.sym("fault", len(FAULT_ORDER))
+        phi = ca.SX.sym("plant", len(PLANT_VARIABLES))
         control = ca.SX.sym("control", 3)  # reference = control[0] + control[1]*t, control[2] = powered
         t = ca.SX.sym("t")
         u, v = x[:n], x[n:2 * n]
         current, angle, omega, integral = x[2 * n], x[2 * n + 1], x[2 * n + 2], x[2 * n + 3]
         hooks = x[2 * n + 4:2 * n + 6]
         faults = unpack(theta)
+        own = dict(zip(PLANT_VARIABLES, ca.vertsplit(phi)))
+        motor = replace(p.motor, resistance_ohm=own["motor.resistance_ohm"], supply_v=own["motor.supply_v"],
+                        coulomb_friction_nm=own["motor.coulomb_friction_nm"] + faults["drive_friction_nm"],
+                        torque_constant_nm_a=own["motor.torque_constant_nm_a"],
+                        emf_constant_v_s=own["motor.torque_constant_nm_a"])
+        heel = own["rail.heel_flex_factor"]
 
         rail_m = p.rail.neutral_m + u[n - 1]
         rod_m, rod_velocity, lever_m = rod_kinematics(p.drive, angle, omega)
@@ -83,32 +104,41 @@ class Plant:
 
         lock = lock_terms(p.lock, p.drive, p.adjuster, p.rail.left_stock_m, p.rail.right_stock_m, rail_m, rod_m, hooks,
                           faults["left_bolt_offset"], faults["right_bolt_offset"])
-        forces = self.beam.internal_forces(u, v)
+        forces = self.beam.internal_forces(u, v, heel, own["rail.chair_friction_coefficient"],
+                                           own["rail.chair_viscous_n_s_m"])
         forces -= faults["bearing_friction"] * ca.DM(bearing_weights(self.beam.masses_kg, self.beam.shape)) * v
         obstacle = faults["obstacle_friction"] * obstacle_profile(p.obstacle, rail_m, faults["obstacle_position"])
         forces[n - 1] += drive_force + lock.force_n - obstacle * v[n - 1]
         acceleration = forces / ca.DM(self.beam.masses_kg)
 
         omega_ref = control[0] + control[1] * t
-        voltage, d_integral = controller(p.controller, p.motor, omega_ref, omega, integral, control[2])
-        d_current, d_omega = motor_derivatives(p.motor, voltage, current, omega, rod_force * lever_m)
+        voltage, d_integral = controller(p.controller, motor, omega_ref, omega, integral, control[2])
+        d_current, d_omega = motor_derivatives(motor, voltage, current, omega, rod_force * lever_m)
 
         ode = ca.vertcat(v, acceleration, d_current, omega, d_omega, d_integral, lock.d_hooks)
-        self._dae = {"x": x, "p": theta, "u": control, "t": t, "ode": ode}
+        self._dae = {"x": x, "p": ca.vertcat(theta, phi), "u": control, "t": t, "ode": ode}
         machine_force = drive_force + lock.force_n  # everything the point machine applies at the drive point
         outputs = ca.vertcat(current, angle, omega, rail_m, v[n - 1], acceleration[n - 1], machine_force, rod_m)
-        self._outputs = ca.Function("outputs", [x, theta], [outputs])
-        rail_energy = self.beam.energy(u, v) + lock.energy_j
+        self._outputs = ca.Function("outputs", [x, theta, phi], [outputs])
+        rail_energy = self.beam.energy(u, v, heel) + lock.energy_j
         drive_energy = (adjuster_energy(p.adjuster, rod_m, adjuster_m, faults["left_bolt_offset"], faults["right_bolt_offset"])
                         + 0.5 * p.motor.rotor_inertia_kg_m2 * omega**2 + 0.5 * p.motor.inductance_h * current**2)
-        self.energy = ca.Function("energy", [x, theta], [rail_energy, rail_energy + drive_energy],
-                                  ["x", "fault"], ["rails", "total"])
+        self.energy = ca.Function("energy", [x, theta, phi], [rail_energy, rail_energy + drive_energy],
+                                  ["x", "fault", "plant"], ["rails", "total"])
 
     def ode_function(self) -> ca.Function:
-        """The right-hand side f(t, x, fault, control) and its sparse Jacobian in x."""
+        """The right-hand side f(t, x, [fault; plant variables], control) and its sparse Jacobian in x."""
         d = self._dae
         return ca.Function("plant_ode", [d["t"], d["x"], d["p"], d["u"]], [d["ode"], ca.jacobian(d["ode"], d["x"])],
-                           ["t", "x", "fault", "control"], ["ode", "jac_x"])
+                           ["t", "x", "p", "control"], ["ode", "jac_x"])
+
+    def variables(self, values: dict[str, float] | None = None) -> np.ndarray:
+        """The plant variables in PLANT_VARIABLES order: this plant's nominal ones, overridden by `values`."""
+        own = {**self.nominal, **(values or {})}
+        unknown = set(own) - set(PLANT_VARIABLES)
+        if unknown:
+            raise ValueError(f"unknown plant parameters {sorted(unknown)}; accepted: {', '.join(PLANT_VARIABLES)}")
+        return np.array([own[name] for name in PLANT_VARIABLES], dtype=float)
 
     @lru_cache(maxsize=16)
     def _integrator(self, dt_s: float, steps: int) -> ca.Function:
@@ -119,24 +149,27 @@ class Plant:
         return ca.integrator("plant", "cvodes", self._dae, 0.0, grid, opts)
 
     # -- simulation --------------------------------------------------------------------------
-    def rest_state(self, rail_position_m: float, motor_angle_rad: float = 0.0) -> np.ndarray:
+    def rest_state(self, rail_position_m: float, motor_angle_rad: float = 0.0,
+                   plant: dict[str, float] | None = None) -> np.ndarray:
         """Rails at rest in their static shape with the drive point at `rail_position_m`."""
         p = self.params
+        own = self.variables(plant)
         x = np.zeros(self.n_states)
-        x[: self.nodes] = self.beam.rest_shape(rail_position_m)
+        x[: self.nodes] = self.beam.rest_shape(rail_position_m, own[PLANT_VARIABLES.index("rail.heel_flex_factor")])
         x[self.index["angle_rad"]] = motor_angle_rad
-        rod_m = float(np.asarray(self._outputs(x, fault_vector())).ravel()[SIGNALS.index("rod_position_m")])
+        rod_m = float(np.asarray(self._outputs(x, fault_vector(), own)).ravel()[SIGNALS.index("rod_position_m")])
         x[[self.index["hook_left"], self.index["hook_right"]]] = latched_hooks(
             p.lock, p.drive, p.rail.left_stock_m, p.rail.right_stock_m, rail_position_m, rod_m)
         return x
 
     def run(self, state: np.ndarray, duration_s: float, rate_hz: float, faults: dict[str, float] | None = None,
-            reference: Reference | None = None) -> Trajectory:
+            reference: Reference | None = None, plant: dict[str, float] | None = None) -> Trajectory:
         """Integrate from `state` for `duration_s`, sampling at `rate_hz`.
 
         With a reference the controller is powered and tracks it (time 0 is the
         start of this run, the controller's integrator starts from `state`);
-        without one the motor is unpowered (armature short-circuited).
+        without one the motor is unpowered (armature short-circuited). `plant`
+        overrides this plant's nominal variables (a switch's own build and weather).
         """
         steps = int(round(duration_s * rate_hz))
         dt = 1.0 / rate_hz
@@ -147,17 +180,15 @@ class Plant:
             control[1] = (end - start) / dt
             control[0] = start - control[1] * (t - dt)
             control[2] = 1.0
-        theta = fault_vector(faults)
-        states = np.asarray(self._integrator(dt, steps)(x0=state, p=theta, u=control)["xf"])
-        return self._trajectory(t, states, theta)
-
-    def _trajectory(self, t: np.ndarray, states: np.ndarray, theta: np.ndarray) -> Trajectory:
-        values = np.asarray(self._outputs.map(states.shape[1])(states, theta))
+        theta, own = fault_vector(faults), self.variables(plant)
+        states = np.asarray(self._integrator(dt, steps)(x0=state, p=np.concatenate([theta, own]), u=control)["xf"])
+        values = np.asarray(self._outputs.map(states.shape[1])(states, theta, own))
         return Trajectory(t, dict(zip(SIGNALS, values)), states)
 
-    def signals_at(self, state: np.ndarray, faults: dict[str, float] | None = None) -> dict[str, float]:
+    def signals_at(self, state: np.ndarray, faults: dict[str, float] | None = None,
+                   plant: dict[str, float] | None = None) -> dict[str, float]:
         """Output signals for one state."""
-        values = np.asarray(self._outputs(state, fault_vector(faults))).ravel()
+        values = np.asarray(self._outputs(state, fault_vector(faults), self.variables(plant))).ravel()
         return dict(zip(SIGNALS, values.tolist()))
 
     def start_throw(self, state: np.ndarray) -> np.ndarray:
@@ -174,10 +205,13 @@ class Plant:
         contact = 2 * len(self.beam.contact_nodes)  # stock-rail gaps on each side
         return {
             "states": self.n_states,
-            "parameters": scalars + per_node + contact + int(self.beam.stiffness.nnz) + len(FAULT_ORDER),
+            "parameters": scalars + per_node + contact + int(self.beam.stiffness().nnz) + len(FAULT_ORDER),
             "rail_nodes": self.nodes,
             "rail_states": 2 * self.nodes,
             "fault_parameters": list(FAULT_ORDER),
+            "switch_parameters": {name: {"unit": PLANT_PARAMETERS[name].unit, "nominal": self.nominal[name],
+                                         "low": PLANT_PARAMETERS[name].low, "high": PLANT_PARAMETERS[name].high,
+                                         "meaning": PLANT_PARAMETERS[name].meaning} for name in PLANT_VARIABLES},
             "jacobian_nonzeros": int(self.ode_function().sparsity_out("jac_x").nnz()),
             "rail_tip_stiffness_n_m": round(float(self.beam.tip_stiffness_n_m), 1),
             "solver": "cvodes (BDF, sparse direct Newton, AD Jacobian)",

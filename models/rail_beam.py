@@ -62,14 +62,11 @@ class RailBeam:
         self.contact_nodes = np.flatnonzero(self.arc_m >= (1.0 - params.contact_region_fraction) * params.length_m)
 
     @cached_property
-    def joint_bending_stiffness(self) -> np.ndarray:
-        """EI at every joint (joint j sits at node j, joint 0 at the clamped heel)."""
-        p = self.params
-        arc = self.spacing_m * np.arange(p.nodes)
-        return np.where(arc < p.heel_flex_length_m, p.heel_flex_factor, 1.0) * p.bending_stiffness_n_m2
+    def _heel_joints(self) -> np.ndarray:
+        """1 at the joints of the machined heel, 0 elsewhere (joint j sits at node j, joint 0 at the clamped heel)."""
+        return (self.spacing_m * np.arange(self.params.nodes) < self.params.heel_flex_length_m).astype(float)
 
-    @cached_property
-    def stiffness(self) -> sp.csc_matrix:
+    def _stiffness_from_joints(self, joint_ei: np.ndarray) -> sp.csc_matrix:
         """K = ds * D^T diag(EI) D, D the curvature at every joint (heel clamped, toe free)."""
         n, ds = self.params.nodes, self.spacing_m
         rows, cols, vals = [], [], []
@@ -80,36 +77,58 @@ class RailBeam:
                     cols.append(node - 1)
                     vals.append(weight / ds**2)
         curvature = sp.csr_matrix((vals, (rows, cols)), shape=(n, n))
-        stiffness = sp.csc_matrix(ds * (curvature.T @ sp.diags(self.joint_bending_stiffness) @ curvature))
+        stiffness = sp.csc_matrix(ds * (curvature.T @ sp.diags(joint_ei) @ curvature))
         stiffness.sort_indices()
         return stiffness
 
     @cached_property
-    def stiffness_dm(self) -> ca.DM:
-        """The stiffness matrix as a sparse CasADi constant."""
-        k = self.stiffness
-        return ca.DM(ca.Sparsity(k.shape[0], k.shape[1], k.indptr.tolist(), k.indices.tolist()), k.data)
+    def stiffness_parts(self) -> tuple[sp.csc_matrix, sp.csc_matrix]:
+        """K = K_rail + heel_flex_factor * K_heel: the full-section joints, and the heel's at factor 1."""
+        ei = self.params.bending_stiffness_n_m2
+        return (self._stiffness_from_joints((1.0 - self._heel_joints) * ei),
+                self._stiffness_from_joints(self._heel_joints * ei))
+
+    def stiffness(self, heel_flex_factor: float | None = None) -> sp.csc_matrix:
+        """The stiffness matrix for a heel factor (default: the params')."""
+        rail, heel = self.stiffness_parts
+        factor = self.params.heel_flex_factor if heel_flex_factor is None else heel_flex_factor
+        return sp.csc_matrix(rail + factor * heel)
 
     @cached_property
-    def _unit_load_deflection(self) -> np.ndarray:
+    def _stiffness_dm_parts(self) -> tuple[ca.DM, ca.DM]:
+        def dm(k: sp.csc_matrix) -> ca.DM:
+            k = sp.csc_matrix(k)
+            k.sort_indices()
+            return ca.DM(ca.Sparsity(k.shape[0], k.shape[1], k.indptr.tolist(), k.indices.tolist()), k.data)
+        return tuple(dm(k) for k in self.stiffness_parts)
+
+    def stiffness_times(self, u, heel_flex_factor):
+        """K u as a CasADi expression; the heel factor may be symbolic."""
+        rail, heel = self._stiffness_dm_parts
+        return ca.mtimes(rail, u) + heel_flex_factor * ca.mtimes(heel, u)
+
+    def _unit_load_deflection(self, heel_flex_factor: float | None = None) -> np.ndarray:
         """Static deflection of every node under 1 N at the drive point."""
         load = np.zeros(self.params.nodes)
         load[-1] = 1.0
-        return sp.linalg.spsolve(self.stiffness, load)
+        return sp.linalg.spsolve(self.stiffness(heel_flex_factor), load)
 
-    @property
+    @cached_property
     def shape(self) -> np.ndarray:
-        """Static deflection under a load at the drive point, 1 at the drive point."""
-        return self._unit_load_deflection / self._unit_load_deflection[-1]
+        """Static deflection under a load at the drive point, 1 at the drive point (the params' heel).
+        It fixes the geometry: where the stock rails are and how bearing friction is spread."""
+        deflection = self._unit_load_deflection()
+        return deflection / deflection[-1]
 
     @property
     def tip_stiffness_n_m(self) -> float:
         """Static stiffness seen at the drive point (3EI/L^3 for a uniform continuous beam)."""
-        return 1.0 / self._unit_load_deflection[-1]
+        return 1.0 / self._unit_load_deflection()[-1]
 
-    def rest_shape(self, drive_position_m: float) -> np.ndarray:
+    def rest_shape(self, drive_position_m: float, heel_flex_factor: float | None = None) -> np.ndarray:
         """Node displacements of the static shape with the drive point at `drive_position_m`."""
-        return (drive_position_m - self.params.neutral_m) * self.shape
+        deflection = self._unit_load_deflection(heel_flex_factor)
+        return (drive_position_m - self.params.neutral_m) * deflection / deflection[-1]
 
     def _stock_penetrations(self, u):
         """Penetration into the left and right stock rails of every toe node."""
@@ -120,13 +139,18 @@ class RailBeam:
         right = u[idx] - (p.right_stock_m - p.neutral_m) * shape
         return idx, left, right
 
-    def internal_forces(self, u, v):
-        """Bending, structural damping, slide-chair friction and stock-rail contact forces on every node."""
+    def internal_forces(self, u, v, heel_flex_factor=None, chair_friction_coefficient=None, chair_viscous_n_s_m=None):
+        """Bending, structural damping, slide-chair friction and stock-rail contact forces on every node.
+
+        The heel factor and the chairs' friction default to the params' and may be symbolic (a switch's own)."""
         p = self.params
-        forces = -ca.mtimes(self.stiffness_dm, u + p.structural_damping_s * v)
+        heel = p.heel_flex_factor if heel_flex_factor is None else heel_flex_factor
+        mu = p.chair_friction_coefficient if chair_friction_coefficient is None else chair_friction_coefficient
+        viscous = p.chair_viscous_n_s_m if chair_viscous_n_s_m is None else chair_viscous_n_s_m
+        forces = -self.stiffness_times(u + p.structural_damping_s * v, heel)
         normal_n = ca.DM(self.masses_kg * GRAVITY_M_S2)
-        forces -= p.chair_friction_coefficient * normal_n * ca.tanh(v / p.chair_friction_speed_m_s)
-        forces -= p.chair_viscous_n_s_m * v
+        forces -= mu * normal_n * ca.tanh(v / p.chair_friction_speed_m_s)
+        forces -= viscous * v
         idx, left, right = self._stock_penetrations(u)
         rate = v[idx]
         contact = unilateral_contact(left, -rate, p.stock_stiffness_n_m, p.stock_damping_s_m) \
@@ -134,10 +158,11 @@ class RailBeam:
         forces[idx] += contact
         return forces
 
-    def energy(self, u, v):
+    def energy(self, u, v, heel_flex_factor=None):
         """Kinetic + bending + stock-contact elastic energy (J)."""
+        heel = self.params.heel_flex_factor if heel_flex_factor is None else heel_flex_factor
         kinetic = 0.5 * ca.sum1(ca.DM(self.masses_kg) * v**2)
-        bending = 0.5 * ca.dot(u, ca.mtimes(self.stiffness_dm, u))
+        bending = 0.5 * ca.dot(u, self.stiffness_times(u, heel))
         _, left, right = self._stock_penetrations(u)
         contact = 0.5 * self.params.stock_stiffness_n_m * ca.sum1(ca.fmax(left, 0) ** 2 + ca.fmax(right, 0) ** 2)
         return kinetic + bending + contact

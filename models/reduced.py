@@ -29,16 +29,24 @@ import numpy as np
 from railswitch.models.adjuster import adjuster_force, smooth_contact
 from railswitch.models.drive import adjuster_on_rod, rod_kinematics
 from railswitch.models.integrators import relax, ros2
-from railswitch.models.faults import FAULT_ORDER, fault_vector, obstacle_profile, unpack
+from railswitch.models.faults import FAULT_ORDER, obstacle_profile
+from railswitch.models.rail_beam import GRAVITY_M_S2, RailBeam
 from railswitch.models.lock import LockTerms, latched_hooks, lock_terms
 from railswitch.models.motor import controller, motor_derivatives
 from railswitch.models.plant import PlantParams
 from railswitch.models.rail_models import Representation
 from railswitch.models.reference import DIRECTIONS, Reference
 from railswitch.models.smooth import smooth_clip
+from railswitch.schemas.faults import FAULT_PARAMETERS
 
 STATES = ("angle_rad", "velocity_rad_s", "integral_v", "current_a", "rail_position_m", "rail_velocity_m_s",
           "hook_left", "hook_right")
+# What a real switch's own build and weather change that the reduced model can show (plant variables,
+# schemas/plant.py): estimated beside the faults. The motor's Coulomb friction here is the whole point
+# machine's; the fault drive_friction_nm adds to it.
+NUISANCES = ("motor.coulomb_friction_nm", "motor.torque_constant_nm_a", "motor.resistance_ohm", "motor.supply_v",
+             "rail.chair_friction_coefficient")
+PARAMETERS = FAULT_ORDER + NUISANCES  # the reduced model's parameter vector
 OUTPUTS = ("current_a", "angle_rad", "velocity_rad_s", "rail_position_m", "rail_velocity_m_s", "drive_force_n")
 
 
@@ -68,6 +76,10 @@ class ReducedParams:
     # flexible rails; calibrated per representation (`railswitch calibrate`, stored with the model's weights).
     bearing_port: tuple[tuple[float, float], tuple[float, float]] = ((1.0, 0.0), (1.0, 0.0))  # (gain, offset) in DIRECTIONS order
     port_velocity_m_s: float = 0.002
+    # The chairs' Coulomb friction beyond the nominal one (which the learned rail holds), at the drive
+    # point, smoothed over this speed: slow enough that a coefficient below nominal never makes the rail
+    # accelerate itself near rest.
+    chair_friction_speed_m_s: float = 0.01
 
     def steps_per_sample(self, rate_hz: float) -> int:
         """`substeps`, or more so that no step is longer than `max_step_s`."""
@@ -111,13 +123,30 @@ class ReducedSwitch:
                                  contact_damping_s_m=params.contact_damping_s_m)
         self._lock_params = replace(params.plant.lock, stiffness_n_m=params.lock_stiffness_n_m,
                              latch_rate_1_s=params.latch_rate_1_s or params.plant.lock.latch_rate_1_s)
+        beam = RailBeam(params.plant.rail)
+        # The chairs' normal forces seen at the drive point for motion in the rails' static shape (virtual work).
+        self._chair_normal_n = float(GRAVITY_M_S2 * np.sum(beam.masses_kg * beam.shape))
+        self._nominal_nuisance = {name: float(getattr(getattr(params.plant, name.split(".")[0]), name.split(".")[1]))
+                                  for name in NUISANCES}
         self.step = self._build_step()
         self.compiler = compiler
+
+    def nominal(self) -> dict[str, float]:
+        """Every parameter at its nominal value: faults none, the switch as built."""
+        return {**{name: FAULT_PARAMETERS[name].nominal for name in FAULT_ORDER}, **self._nominal_nuisance}
+
+    def vector(self, values: dict[str, float] | None = None) -> np.ndarray:
+        """The parameter vector (PARAMETERS order): nominal where not given."""
+        full = {**self.nominal(), **(values or {})}
+        unknown = set(full) - set(PARAMETERS)
+        if unknown:
+            raise ValueError(f"unknown parameters {sorted(unknown)}; accepted: {', '.join(PARAMETERS)}")
+        return np.array([full[name] for name in PARAMETERS], dtype=float)
 
     def _lock(self, s, theta) -> LockTerms:
         """The end-position lock at state `s` (rod from the motor angle, blades at the drive point)."""
         p = self.params.plant
-        faults = unpack(theta)
+        faults = dict(zip(PARAMETERS, ca.vertsplit(theta)))
         rod_m = rod_kinematics(p.drive, s[0], s[1])[0]
         return lock_terms(self._lock_params, p.drive, self._adjuster, p.rail.left_stock_m, p.rail.right_stock_m, s[4],
                           rod_m, s[6:8], faults["left_bolt_offset"], faults["right_bolt_offset"],
@@ -127,7 +156,13 @@ class ReducedSwitch:
         """Derivative and outputs; with `frozen_rail` (a state), the rail is its linear stand-in there."""
         p = self.params.plant
         angle, omega, integral, current, x, v = (s[i] for i in range(6))
-        faults = unpack(theta)
+        faults = dict(zip(PARAMETERS, ca.vertsplit(theta)))
+        motor = replace(p.motor, coulomb_friction_nm=faults["motor.coulomb_friction_nm"] + faults["drive_friction_nm"],
+                        torque_constant_nm_a=faults["motor.torque_constant_nm_a"],
+                        emf_constant_v_s=faults["motor.torque_constant_nm_a"], resistance_ohm=faults["motor.resistance_ohm"],
+                        supply_v=faults["motor.supply_v"])
+        chairs = ((faults["rail.chair_friction_coefficient"] - self._nominal_nuisance["rail.chair_friction_coefficient"])
+                  * self._chair_normal_n * ca.tanh(v / self.params.chair_friction_speed_m_s))
         rod_m, rod_velocity, lever_m = rod_kinematics(p.drive, angle, omega)
         adjuster_m, adjuster_velocity = adjuster_on_rod(p.drive, x, v)
 
@@ -140,7 +175,8 @@ class ReducedSwitch:
         lock = self._lock(s, theta)
         external = (drive_force + lock.force_n + stock_rail_force(self.params, x, v)
                     - self._bearing_damping(faults["bearing_friction"], v) * v
-                    - faults["obstacle_friction"] * obstacle_profile(p.obstacle, x, faults["obstacle_position"]) * v)
+                    - faults["obstacle_friction"] * obstacle_profile(p.obstacle, x, faults["obstacle_position"]) * v
+                    - chairs)
         if frozen_rail is None:
             acceleration = self.representation.acceleration(x, v, external, w)
         else:
@@ -152,8 +188,8 @@ class ReducedSwitch:
         def clip(value, limit):
             return smooth_clip(value, limit, self.params.voltage_corner_v)
 
-        voltage, d_integral = controller(p.controller, p.motor, omega_ref, omega, integral, 1.0, clip)
-        d_current, d_omega = motor_derivatives(p.motor, voltage, current, omega, rod_force * lever_m)
+        voltage, d_integral = controller(p.controller, motor, omega_ref, omega, integral, 1.0, clip)
+        d_current, d_omega = motor_derivatives(motor, voltage, current, omega, rod_force * lever_m)
         derivative = ca.vertcat(omega, d_omega, d_integral, d_current, v, acceleration, lock.d_hooks)
         return derivative, ca.vertcat(current, angle, omega, x, v, drive_force + lock.force_n)
 
@@ -168,7 +204,7 @@ class ReducedSwitch:
         """One sample: `substeps` split steps (see the module's docstring), the reference linear over the sample."""
         s = ca.SX.sym("s", len(STATES))
         ref = ca.SX.sym("ref", 2)  # reference at the sample interval's start and end
-        theta = ca.SX.sym("fault", len(FAULT_ORDER))
+        theta = ca.SX.sym("theta", len(PARAMETERS))
         w = ca.SX.sym("w", self.representation.size)
         substeps = self.params.steps_per_sample(self.rate_hz)
         h = 1.0 / (self.rate_hz * substeps)
@@ -197,11 +233,11 @@ class ReducedSwitch:
         _, output = self._ode(state, ref[1], theta, w)
         state, output = ca.cse([state, output])
         return ca.Function("sample_step", [s, ref, theta, w], [state, output],
-                           ["s", "ref", "fault", "w"], ["s_next", "y"])
+                           ["s", "ref", "theta", "w"], ["s_next", "y"])
 
     @lru_cache(maxsize=8)
     def rollout(self, samples: int) -> ca.Function:
-        """(s0, refs 2xN, fault, w) -> outputs 6xN at the N sample times after the start."""
+        """(s0, refs 2xN, theta, w) -> outputs 6xN at the N sample times after the start (theta: PARAMETERS)."""
         function = self._rollout(samples)
         return function if self.compiler is None else self.compiler([function])[0]
 
@@ -209,42 +245,47 @@ class ReducedSwitch:
         acc = self.step.mapaccum("rollout_acc", samples)
         s0 = ca.MX.sym("s0", len(STATES))
         refs = ca.MX.sym("refs", 2, samples)
-        theta = ca.MX.sym("fault", len(FAULT_ORDER))
+        theta = ca.MX.sym("theta", len(PARAMETERS))
         w = ca.MX.sym("w", self.representation.size)
         states, outputs = acc(s0, refs, ca.repmat(theta, 1, samples), ca.repmat(w, 1, samples))
         return ca.Function("rollout", [s0, refs, theta, w], [outputs, states[:, -1]],
-                           ["s0", "refs", "fault", "w"], ["y", "s_end"])
+                           ["s0", "refs", "theta", "w"], ["y", "s_end"])
+
+    def sensitivity_step(self, directions: int) -> ca.Function:
+        """One sample carrying K forward sensitivities: (s and its K derivatives stacked, ref, theta, the K
+        parameter seeds P x K flattened, w) -> (the same one sample later, outputs 6 and their derivatives 6K).
+
+        The sensitivities ride through each step in SX as K extra 8-vectors of state: the same numbers
+        as CasADi's forward derivative of a rollout, at a third to a fifth of its cost, which recomputes
+        each step's nominal values inside its derivative."""
+        n, m = len(STATES), len(PARAMETERS)
+        s, ref, theta = ca.SX.sym("s", n), ca.SX.sym("ref", 2), ca.SX.sym("theta", m)
+        w = ca.SX.sym("w", self.representation.size)
+        state_seeds, parameter_seeds = ca.SX.sym("S", n, directions), ca.SX.sym("D", m, directions)
+        s_next, y = self.step(s, ref, theta, w)
+        point, seeds = ca.vertcat(s, theta), ca.vertcat(state_seeds, parameter_seeds)
+        s_next, s_next_dot, y, y_dot = ca.cse([s_next, ca.jtimes(s_next, point, seeds), y, ca.jtimes(y, point, seeds)])
+        return ca.Function("sensitivity_step", [ca.vertcat(s, ca.vec(state_seeds)), ref, theta, ca.vec(parameter_seeds), w],
+                           [ca.vertcat(s_next, ca.vec(s_next_dot)), ca.vertcat(y, ca.vec(y_dot))],
+                           ["s_dot", "ref", "theta", "seeds", "w"], ["s_dot_next", "y_dot"])
 
     def sensitivity_rollout(self, samples: int, directions: int) -> ca.Function:
-        """(s0, refs 2xN, fault, seeds FxK, w) -> outputs 6xN and their derivatives along the K fault
-        seeds, 6K x N (rows: output, then seed).
-
-        Forward sensitivities ride through each sample step in SX as K extra 8-vectors of state and
-        are rolled with mapaccum. The same numbers as CasADi's forward derivative of `rollout`, at a
-        third to a fifth of its cost, which recomputes each step's nominal values inside its derivative.
-        """
-        n, m = len(STATES), len(FAULT_ORDER)
-        s, ref, theta = ca.SX.sym("s", n), ca.SX.sym("ref", 2), ca.SX.sym("fault", m)
-        w = ca.SX.sym("w", self.representation.size)
-        state_seeds, fault_seeds = ca.SX.sym("S", n, directions), ca.SX.sym("D", m, directions)
-        s_next, y = self.step(s, ref, theta, w)
-        point, seeds = ca.vertcat(s, theta), ca.vertcat(state_seeds, fault_seeds)
-        s_next, s_next_dot, y, y_dot = ca.cse([s_next, ca.jtimes(s_next, point, seeds), y, ca.jtimes(y, point, seeds)])
-        step = ca.Function("sensitivity_step", [ca.vertcat(s, ca.vec(state_seeds)), ref, theta, ca.vec(fault_seeds), w],
-                           [ca.vertcat(s_next, ca.vec(s_next_dot)), ca.vertcat(y, ca.vec(y_dot))])
+        """(s0, refs 2xN, theta, seeds PxK, w) -> outputs 6xN and their derivatives along the K parameter
+        seeds, 6K x N (rows: output, then seed)."""
+        n, m = len(STATES), len(PARAMETERS)
         s0, refs = ca.MX.sym("s0", n), ca.MX.sym("refs", 2, samples)
-        fault, fault_directions = ca.MX.sym("fault", m), ca.MX.sym("seeds", m, directions)
+        theta, seeds = ca.MX.sym("theta", m), ca.MX.sym("seeds", m, directions)
         weights = ca.MX.sym("w", self.representation.size)
-        _, outputs = step.mapaccum("sensitivity_acc", samples)(
-            ca.vertcat(s0, ca.MX.zeros(n * directions)), refs, ca.repmat(fault, 1, samples),
-            ca.repmat(ca.vec(fault_directions), 1, samples), ca.repmat(weights, 1, samples))
-        return ca.Function("sensitivity_rollout", [s0, refs, fault, fault_directions, weights],
+        _, outputs = self.sensitivity_step(directions).mapaccum("sensitivity_acc", samples)(
+            ca.vertcat(s0, ca.MX.zeros(n * directions)), refs, ca.repmat(theta, 1, samples),
+            ca.repmat(ca.vec(seeds), 1, samples), ca.repmat(weights, 1, samples))
+        return ca.Function("sensitivity_rollout", [s0, refs, theta, seeds, weights],
                            [outputs[:len(OUTPUTS), :], outputs[len(OUTPUTS):, :]],
-                           ["s0", "refs", "fault", "seeds", "w"], ["y", "y_dot"])
+                           ["s0", "refs", "theta", "seeds", "w"], ["y", "y_dot"])
 
-    def reference_columns(self, reference: Reference, samples: int) -> np.ndarray:
-        """Reference at each sample interval's start and end."""
-        t = np.arange(samples + 1) / self.rate_hz
+    def reference_columns(self, reference: Reference, samples: int, first: int = 0) -> np.ndarray:
+        """Reference at each sample interval's start and end, for `samples` samples from sample `first`."""
+        t = np.arange(first, first + samples + 1) / self.rate_hz
         values = reference(t)
         return np.vstack([values[:-1], values[1:]])
 
@@ -257,9 +298,9 @@ class ReducedSwitch:
         return np.array([angle_rad, velocity_rad_s, 0.0, current_a, rail_position_m, 0.0, *hooks])
 
     def simulate(self, s0: np.ndarray, reference: Reference, samples: int,
-                 faults: dict[str, float] | None = None, weights: np.ndarray | None = None) -> dict[str, np.ndarray]:
+                 values: dict[str, float] | None = None, weights: np.ndarray | None = None) -> dict[str, np.ndarray]:
         """Outputs at the `samples` sample times after s0 (numbers in, numbers out)."""
-        y, s_end = self.rollout(samples)(s0, self.reference_columns(reference, samples), fault_vector(faults),
+        y, s_end = self.rollout(samples)(s0, self.reference_columns(reference, samples), self.vector(values),
                                          self.weights if weights is None else weights)
         out = dict(zip(OUTPUTS, np.asarray(y)))
         out["final_state"] = np.asarray(s_end).ravel()

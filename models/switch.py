@@ -60,15 +60,18 @@ class SwitchSimulation:
     """Advances one plant through throws (alternating, starting left to right from 1.00 m)."""
 
     def __init__(self, plant: Plant, *, rate_hz: float = 50.0, faults: dict[str, float] | None = None,
-                 noise_rel: float = 0.0, seed: int = 0, start_ns: int = 0):
+                 noise_rel: float = 0.0, seed: int = 0, start_ns: int = 0, own: dict[str, float] | None = None):
+        """`own`: this switch's build and weather (plant variables, schemas/plant.py) where not nominal."""
         self.plant = plant
         self.start_ns = int(start_ns)
         self.rate_hz = float(rate_hz)
         self.faults = dict(faults or {})
+        self.own = dict(own or {})
+        plant.variables(self.own)  # unknown names fail here, not at the first throw
         self.noise_rel = float(noise_rel)
         self._rng = np.random.default_rng(seed)
         self._noise_std = {name: noise_rel * peak for name, peak in nominal_peaks(plant, rate_hz).items()} if noise_rel > 0 else {}
-        settled = plant.run(plant.rest_state(1.0), SETTLE_S, self.rate_hz, self.faults)
+        settled = plant.run(plant.rest_state(1.0, plant=self.own), SETTLE_S, self.rate_hz, self.faults, plant=self.own)
         self.state = settled.states[:, -1]
         self.sample_index = 0
         self.throw_count = 0
@@ -76,6 +79,11 @@ class SwitchSimulation:
     def set_faults(self, faults: dict[str, float]) -> None:
         """Replace the injected faults; they act from the next sample on."""
         self.faults = dict(faults)
+
+    def set_own(self, own: dict[str, float]) -> None:
+        """Replace the switch's own parameters where not nominal (weather, wear); from the next sample on."""
+        self.plant.variables(own)
+        self.own = dict(own)
 
     def _samples(self, trajectory, first_index: int) -> Samples:
         measured = {}
@@ -88,7 +96,7 @@ class SwitchSimulation:
 
     def initial_sample(self) -> Samples:
         """The sample at index 0, before anything moves."""
-        signals = self.plant.signals_at(self.state, self.faults)
+        signals = self.plant.signals_at(self.state, self.faults, self.own)
         trajectory = {name: np.array([signals[name]]) for name in (*SIGNAL_NAMES, "rail_position_m")}
         return self._samples(trajectory, 0)
 
@@ -100,7 +108,7 @@ class SwitchSimulation:
         direction = direction or self.next_direction()
         reference = reference or throw_reference(direction, self.plant.params.drive)
         trajectory = self.plant.run(self.plant.start_throw(self.state), THROW_DURATION_S, self.rate_hz,
-                                    self.faults, reference)
+                                    self.faults, reference, self.own)
         start = self.sample_index
         throw = Throw(self.throw_count, direction, reference, start, self._samples(trajectory, start + 1))
         self.state = trajectory.states[:, -1]
@@ -110,7 +118,7 @@ class SwitchSimulation:
 
     def idle(self, duration_s: float) -> Samples:
         """Motor unpowered for `duration_s`; the rails stay where the last throw left them."""
-        trajectory = self.plant.run(self.state, duration_s, self.rate_hz, self.faults)
+        trajectory = self.plant.run(self.state, duration_s, self.rate_hz, self.faults, plant=self.own)
         samples = self._samples(trajectory, self.sample_index + 1)
         self.state = trajectory.states[:, -1]
         self.sample_index += len(samples)
@@ -142,6 +150,7 @@ class ReplayedSwitch:
         self.rate_hz = float(rate_hz)
         self.start_ns = int(start_ns)
         self.faults: dict[str, float] = {}
+        self.own: dict[str, float] = {}
         self.sample_index = 0
         self.throw_count = 0
         self._first = first
@@ -150,6 +159,10 @@ class ReplayedSwitch:
     def set_faults(self, faults: dict[str, float]) -> None:
         """Recorded throws cannot change; the faults are only reported."""
         self.faults = dict(faults)
+
+    def set_own(self, own: dict[str, float]) -> None:
+        """Recorded throws cannot change; the switch's parameters are only reported."""
+        self.own = dict(own)
 
     def _hold(self, first_index: int, count: int) -> Samples:
         last = self._last.signals[-1:]

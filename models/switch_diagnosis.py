@@ -1,31 +1,186 @@
-"""One switch diagnosed throw by throw (paper, section "Fault diagnosis").
+"""One switch diagnosed throw by throw, against its own commissioned baseline (paper, section "Fault diagnosis").
 
-Checks that a throw can be diagnosed at all, estimates where it starts (the motor angle
+A real switch is not the reduced model's twin: its motor, supply, point-machine friction
+and slide chairs differ from the nominal ones and change with the weather. So every
+hypothesis frees, beside its fault parameters, what the population lets vary and the
+reduced model can show:
+
+- the switch's own weather (winding resistance, supply, slide-chair Coulomb friction): free
+  in every throw, the resistance and supply with the population as their prior; the chairs'
+  friction once commissioned with the switch's own recent level (an average over its latest
+  healthy throws) as the prior's mean and DRIFT of it as its spread, so that chairs drying out
+  over many throws are followed while a sudden change is not explained away (with the model's
+  error, the chairs' Coulomb friction and a bearing's viscous friction are not told apart
+  within a throw: how fast they change is what tells them apart);
+- its healthy levels of two fault-like parameters, the extra rail damping that the
+  bearing fault adds to (rolling losses differ from switch to switch) and the point
+  machine's Coulomb friction that the drive-friction fault adds to: free with the
+  population as their prior until the switch is commissioned, with its own baseline after.
+
+A prior charges a fit for straying (models/estimation.py HypothesisSpec), so a switch is
+called healthy when its throw is what a plausible member of the population (or, once
+commissioned, the switch itself) would do, not whatever the nuisances could be bent to.
+
+Commissioning: the first `needed` throws each way that are healthy against the population
+teach the switch's baseline (the levels above and how much each fault mode's fit gains on
+a healthy throw by absorbing model error). Until then decisions are provisional, judged
+against the population. A fault is a departure the free parameters cannot explain:
+bearing friction and drive friction are reported as departures from the baseline.
+
+Each throw checks that it can be diagnosed, estimates where it starts (the motor angle
 from every sample, the blades where the previous throw's fit left them), fits every
-hypothesis (models/estimation.py), judges them (models/isolation.py) and combines the
-latest throw of each direction: a bolt only drives the blades one way (the left bolt
-from left to right), so the other direction's bolt is held at its latest estimate.
+hypothesis the throw can show (a bolt only in the throws it drives; the other bolt is
+held at its latest estimate) and judges them (models/isolation.py). The decided fault's
+size combines every throw since it appeared that can see it, weighted by their own
+variances, with the model's error (which does not average out) added once.
 """
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from railswitch.models.estimation import DRIVING_BOLT, Measurement, ThrowEstimator
-from railswitch.models.isolation import OTHER_DIRECTION, ThrowVerdict, judge
-from railswitch.models.reference import Reference
+from railswitch.models.estimation import DRIVING_BOLT, Estimate, HypothesisSpec, Measurement, ThrowEstimator
+from railswitch.models.health import TRACKED, Health, HealthTracker
+from railswitch.models.isolation import EVIDENCE_THROWS, OTHER_DIRECTION, Evidence, healthy_gains, judge
+from railswitch.models.population import credible_range, spread
+from railswitch.models.reduced import NUISANCES
+from railswitch.models.reference import DIRECTIONS, Reference
 from railswitch.models.signals import MotorSignals
+from railswitch.schemas.faults import FAULT_PARAMETERS, MODE_PARAMETERS
+from railswitch.schemas.plant import PLANT_PARAMETERS
 
 CLOSED_START_M = {"left_to_right": 1.0, "right_to_left": 1.2}  # where a throw starts when the last one closed
 GAP_TOLERANCE = 0.25  # of a sample period, for "the samples are evenly spaced"
+COMMISSIONING_THROWS = 4  # healthy throws each way that make a switch's baseline (at most 6 are asked for)
+# Fault-like parameters with a healthy level per switch: the extra rail damping of the bearing port and
+# the point machine's Coulomb friction.
+BASELINED = ("bearing_friction", "motor.coulomb_friction_nm")
+# Free in every throw, with the population as prior: the winding's resistance (its temperature) and the chairs'
+# Coulomb friction (lubrication, ice). The supply shows only while the controller saturates, which only a
+# near-stall obstacle makes it do: free in those hypotheses. A unit's torque constant is constant, and what it
+# does (the current scaled by a few per cent) the baselined levels absorb.
+FOLLOWED = ("motor.resistance_ohm", "rail.chair_friction_coefficient")
+SATURATION = ("motor.supply_v",)
+# A commissioned level's standard deviation as a prior: its spread over the healthy throws, at least this
+# (what a healthy switch may still vary by from throw to throw).
+BASELINE_FLOOR = {"bearing_friction": 300.0, "motor.coulomb_friction_nm": 0.006}
+# The rolling losses of a switch's chairs (schemas/plant.py) act like bearing friction at the drive point:
+# per node the same viscous friction, i.e. bearing friction = delta per chair x sum of shape^2 (37.8).
+CHAIR_TO_BEARING = 37.8
+OUTSIDE_SIGMAS = 4.0  # a commissioned level this far from the population's mean is reported
+DRIFTING = "rail.chair_friction_coefficient"
+DRIFT = 0.1  # how much the chairs' friction may change from its recent level in one throw (a fraction of it),
+# beyond what its estimates scatter from throw to throw on the healthy switch
+FOLLOW = 0.5  # the weight of each healthy throw in the recent level
+BOUND_SIGMAS = 5.0  # a commissioned level's hard limits, in its standard deviations
+BOLT_GRID = tuple(np.round(np.arange(-0.02, 0.2001, 0.02), 4))
+OBSTACLE_GRID = tuple({"obstacle_position": round(float(p), 3), "obstacle_friction": f}
+                      for p in np.arange(1.02, 1.1801, 0.02) for f in (3e4, 1.5e5))
+
+
+@dataclass(frozen=True)
+class ErrorModel:
+    """The reduced model's error on each fault parameter, measured against the plant over the population
+    (`railswitch calibrate`): a bias (its median, constant + proportional to the value), taken off every
+    estimate, and what is left as a standard deviation, absolute + relative * |value|. It does not average out
+    over throws."""
+
+    absolute: dict[str, float] = field(default_factory=dict)
+    relative: dict[str, float] = field(default_factory=dict)
+    bias: dict[str, float] = field(default_factory=dict)
+    bias_relative: dict[str, float] = field(default_factory=dict)
+
+    def std(self, name: str, value: float) -> float:
+        return self.absolute.get(name, 0.0) + self.relative.get(name, 0.0) * abs(value)
+
+    def corrected(self, name: str, estimate: float) -> float:
+        """The estimate less the model's bias: (estimate - b) / (1 + r) inverts estimate = truth(1 + r) + b."""
+        return (estimate - self.bias.get(name, 0.0)) / (1.0 + self.bias_relative.get(name, 0.0))
+
+
+@dataclass(frozen=True)
+class Population:
+    """What the diagnosis expects of a switch it has not commissioned yet."""
+
+    prior: dict[str, tuple[float, float]]  # mean and standard deviation of the nuisance and baselined parameters
+    bounds: dict[str, tuple[float, float]]  # their credible ranges: hard limits
+    gains: dict[str, dict[str, float]]  # per direction and mode: the MSE gain on a healthy throw (model error)
+    model_weight: float  # healthy throws' nominal MSE over effective samples (models/estimation.py fit_all)
+
+
+LOG_PRIOR = ("rail.chair_friction_coefficient", "motor.coulomb_friction_nm")  # skewed, positive: priors on log
+
+
+def population(gains: dict[str, dict[str, float]] | None = None, model_weight: float = 0.0) -> Population:
+    """The population of models/population.py, in the reduced model's parameters (the chairs' and the point
+    machine's friction on a log scale); `gains` and `model_weight` come from the reduced model's calibration on
+    healthy switches of the population."""
+    prior = {name: spread(name, log=name in LOG_PRIOR) for name in NUISANCES}
+    bounds = {name: credible_range(name) for name in NUISANCES}
+    chairs_mean, chairs_std = spread("rail.chair_viscous_n_s_m")
+    nominal = PLANT_PARAMETERS["rail.chair_viscous_n_s_m"].nominal
+    prior["bearing_friction"] = ((chairs_mean - nominal) * CHAIR_TO_BEARING, chairs_std * CHAIR_TO_BEARING)
+    low, high = credible_range("rail.chair_viscous_n_s_m")
+    bounds["bearing_friction"] = ((low - nominal) * CHAIR_TO_BEARING, (high - nominal) * CHAIR_TO_BEARING)
+    return Population(prior, bounds, gains or {d: {} for d in DIRECTIONS}, model_weight)
+
+
+@dataclass
+class Baseline:
+    """A switch's commissioning: the nominal fit's baselined values and each mode's gain on its healthy throws."""
+
+    needed: int = COMMISSIONING_THROWS
+    healthy: dict[str, list[dict]] = field(default_factory=lambda: {d: [] for d in DIRECTIONS})
+    recent: dict[str, float] = field(default_factory=dict)  # drifting nuisances' recent levels (DRIFTING)
+
+    def count(self, direction: str) -> int:
+        return len(self.healthy[direction])
+
+    @property
+    def complete(self) -> bool:
+        return all(self.count(d) >= self.needed for d in DIRECTIONS)
+
+    def add(self, direction: str, levels: dict[str, float], gains: dict[str, float], model_weight: float) -> None:
+        if self.count(direction) < self.needed:
+            self.healthy[direction].append({"levels": levels, "gains": gains, "model_weight": model_weight})
+
+    def model_weight(self) -> float:
+        """The median over the healthy throws of the nominal fit's MSE over its effective samples."""
+        return float(np.median([h["model_weight"] for d in DIRECTIONS for h in self.healthy[d]]))
+
+    def level(self, direction: str, name: str) -> tuple[float, float]:
+        """Mean and spread of a baselined parameter over the healthy throws of a direction."""
+        values = np.array([h["levels"][name] for h in self.healthy[direction] if name in h["levels"]])
+        if not len(values):
+            return float("nan"), 0.0
+        return float(values.mean()), float(values.std(ddof=1)) if len(values) > 1 else 0.0
+
+    def gains(self, direction: str) -> dict[str, float]:
+        return {mode: max(h["gains"].get(mode, 0.0) for h in self.healthy[direction]) for mode in MODE_PARAMETERS}
+
+    def follow(self, name: str, value: float) -> None:
+        """Move a drifting nuisance's recent level towards a healthy throw's estimate."""
+        previous = self.recent.get(name)
+        self.recent[name] = value if previous is None else previous + FOLLOW * (value - previous)
+
+    def to_dict(self) -> dict:
+        return {"needed": self.needed, "healthy": self.healthy, "recent": self.recent}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> Baseline:
+        baseline = cls(int(data["needed"]))
+        for direction in DIRECTIONS:
+            baseline.healthy[direction] = [dict(h) for h in data["healthy"].get(direction, [])]
+        baseline.recent = {k: float(v) for k, v in data.get("recent", {}).items()}
+        return baseline
 
 
 @dataclass(frozen=True)
 class ThrowInput:
     """One throw as the diagnoser receives it: samples relative to the start event."""
 
+    index: int
     direction: str
     reference: Reference
     t_s: np.ndarray  # first sample at the start event (t = 0)
@@ -74,42 +229,261 @@ def problem(throw: ThrowInput) -> str | None:
     return None
 
 
-@dataclass
+@dataclass(frozen=True)
+class Reported:
+    """A hypothesis as a diagnosis reports it: fault parameters as departures from the baseline, their
+    standard deviations (the fit's and the model's error), what the throw cannot see, and the nuisances."""
+
+    mode: str
+    params: dict[str, float]
+    std: dict[str, float]
+    mse: float
+    unobservable: tuple[str, ...] = ()
+    nuisance: dict[str, float] = field(default_factory=dict)
+    fit_std: dict[str, float] = field(default_factory=dict)  # the fit's own part of std
+
+
+@dataclass(frozen=True)
+class ThrowVerdict:
+    """What one throw says: its most likely mode (or nominal), the evidence for each and every hypothesis."""
+
+    index: int
+    direction: str
+    mode: str
+    evidence: dict[str, Evidence]
+    estimates: dict[str, Estimate]
+    reported: dict[str, Reported]
+    end_rail_m: float  # where the decided hypothesis leaves the blades
+    fitted: dict[str, np.ndarray]  # the decided hypothesis's outputs at the samples after the start
+    provisional: bool
+
+    @property
+    def strength(self) -> float:
+        return self.evidence[self.mode].ratio if self.mode in self.evidence else 0.0
+
+
+@dataclass(frozen=True)
+class Combined:
+    """A fault's size combined over the throws since it appeared that can see it."""
+
+    mode: str
+    params: dict[str, float]
+    std: dict[str, float]
+    throws: int
+    since_throw: int
+    fit_std: dict[str, float] = field(default_factory=dict)  # the fits' own part of std
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """The switch's decision after a throw, why, this throw's verdict, the decided fault's combined size and
+    the switch's health over its throws."""
+
+    decision: str
+    reason: str | None
+    verdict: ThrowVerdict | None
+    estimate: Combined | None
+    health: Health | None = None
+
+
+def observable(mode: str, direction: str) -> bool:
+    """A bolt shows only in the throws it drives; every other mode in both directions."""
+    return mode not in DRIVING_BOLT.values() or DRIVING_BOLT[direction] == mode
+
+
 class SwitchDiagnoser:
-    """Diagnoses one switch throw by throw; remembers the latest verdict per direction."""
+    """Diagnoses one switch throw by throw; holds its baseline, latest verdicts and the decided fault's history."""
 
-    estimator_for: Callable[[float, int], tuple[ThrowEstimator, dict]]  # (rate, samples) -> estimator and its
-    # commissioning gains, built once and shared
-    latest: dict[str, ThrowVerdict] = field(default_factory=dict)
-    rail_m: float | None = None  # blades' position after the last diagnosed throw
+    def __init__(self, estimator: ThrowEstimator, prior: Population, errors: ErrorModel | None = None,
+                 baseline: Baseline | None = None, limits: dict[str, float] | None = None):
+        self.estimator = estimator
+        self.prior = prior
+        self.errors = errors or ErrorModel()
+        self.baseline = baseline or Baseline()
+        self.health = HealthTracker(limits, {name: self.errors.absolute.get(name, 0.0) for name in TRACKED})
+        self.latest: dict[str, ThrowVerdict] = {}
+        self.rail_m: float | None = None  # blades' position after the last diagnosed throw
+        self.track: list[ThrowVerdict] = []  # throws since the decided fault appeared
+        self.evidence: dict[str, list[Evidence]] = {}  # per mode, from the latest throws that saw it, latest first
 
-    def diagnose(self, throw: ThrowInput) -> tuple[str, str | None, ThrowVerdict | None]:
-        """(decision, reason, this throw's verdict); the decision combines both directions."""
+    # -- commissioning ------------------------------------------------------------------------
+    def restart_commissioning(self) -> None:
+        """After maintenance: forget the baseline and the switch's history; learn it again."""
+        self.baseline = Baseline(self.baseline.needed)
+        self.latest.clear()
+        self.track.clear()
+        self.evidence.clear()
+        self.health.reset()
+
+    def _prior(self, direction: str, name: str) -> tuple[float, float]:
+        """Mean and standard deviation a baselined parameter is expected at: the switch's own once commissioned
+        (the population's, on log(value) for those in LOG_PRIOR, before)."""
+        if not self.baseline.complete:
+            return self.prior.prior[name]
+        mean, spread_ = self.baseline.level(direction, name)
+        return mean, max(spread_, BASELINE_FLOOR[name])
+
+    def level(self, direction: str, name: str) -> float:
+        """The level a baselined parameter is expected at, as a value (its prior's mean, back from log)."""
+        mean = self._prior(direction, name)[0]
+        return float(np.exp(mean)) if name in self._log_prior() else mean
+
+    def _log_prior(self) -> tuple[str, ...]:
+        """Which priors are on log(value): the population's skewed ones; once commissioned, the chairs' drift."""
+        return (DRIFTING,) if self.baseline.complete else LOG_PRIOR
+
+    def _bounds(self, direction: str, name: str) -> tuple[float, float]:
+        """Where a nuisance or baselined parameter may go at all: the population's credible range, or
+        BOUND_SIGMAS of the switch's own baseline once commissioned."""
+        if name not in BASELINED or not self.baseline.complete:
+            return self.prior.bounds[name]
+        mean, std = self._prior(direction, name)
+        return mean - BOUND_SIGMAS * std, mean + BOUND_SIGMAS * std
+
+    def _gains(self, direction: str) -> dict[str, float]:
+        return self.baseline.gains(direction) if self.baseline.complete else self.prior.gains.get(direction, {})
+
+    def outside_population(self) -> list[str]:
+        """Baselined parameters whose commissioned level lies outside the population's credible range."""
+        if not self.baseline.complete:
+            return []
+        out = []
+        for name in BASELINED:
+            mean, std = self.prior.prior[name]
+            for d in DIRECTIONS:
+                level = self.baseline.level(d, name)[0]
+                level = np.log(max(level, 1e-300)) if name in LOG_PRIOR else level
+                if abs(level - mean) > OUTSIDE_SIGMAS * std:
+                    out.append(name)
+                    break
+        return out
+
+    # -- hypotheses ---------------------------------------------------------------------------
+    def specs(self, direction: str) -> dict[str, HypothesisSpec]:
+        """The hypotheses a throw in `direction` can show, with what each frees, holds and expects."""
+        bolt = DRIVING_BOLT[direction]
+        other = DRIVING_BOLT[OTHER_DIRECTION[direction]]
+        held = {MODE_PARAMETERS[other][0]: self.background(direction)}
+        bounds = {name: self._bounds(direction, name) for name in (*FOLLOWED, *SATURATION, *BASELINED)}
+        prior = {**{name: self.prior.prior[name] for name in (*FOLLOWED, *SATURATION)},
+                 **{name: self._prior(direction, name) for name in BASELINED}}
+        if self.baseline.complete and DRIFTING in self.baseline.recent:
+            recent = max(self.baseline.recent[DRIFTING], self.prior.bounds[DRIFTING][0])
+            scatter = max(self.baseline.level(d, DRIFTING)[1] for d in DIRECTIONS)  # its throw-to-throw estimates
+            prior[DRIFTING] = (float(np.log(recent)), float(np.hypot(DRIFT, scatter / recent)))  # on log(value)
+        healthy = {name: bounds[name] for name in (*FOLLOWED, *BASELINED)}
+        logs = self._log_prior()
+        b0, c0 = self.level(direction, "bearing_friction"), self.level(direction, "motor.coulomb_friction_nm")
+        fault = {n: (p.low, p.high) for n, p in FAULT_PARAMETERS.items()}
+        bearing_fault = (b0 + fault["bearing_friction"][0], b0 + fault["bearing_friction"][1])
+        without = {name: prior[name] for name in (*FOLLOWED, *SATURATION)}  # priors when a baselined one is the fault
+        saturation = {name: bounds[name] for name in SATURATION}
+        bolt_name = MODE_PARAMETERS[bolt][0]
+        obstacle = {n: fault[n] for n in MODE_PARAMETERS["obstacle"]}
+        machine = {"drive_friction_nm": fault["drive_friction_nm"]}
+        bearing_prior = {**without, "bearing_friction": prior["bearing_friction"]}
+        return {
+            "nominal": HypothesisSpec("nominal", healthy, held, prior=prior, log_prior=logs),
+            bolt: HypothesisSpec(bolt, {bolt_name: fault[bolt_name], **healthy}, held,
+                                 tuple({bolt_name: float(b)} for b in BOLT_GRID), prior, logs),
+            "missing_bearing": HypothesisSpec(
+                "missing_bearing", {**healthy, "bearing_friction": bearing_fault}, held,
+                tuple({"bearing_friction": b0 + f} for f in (500.0, 2e3, 5e3, 1e4)),
+                {**without, "motor.coulomb_friction_nm": prior["motor.coulomb_friction_nm"]}, logs),
+            "obstacle": HypothesisSpec("obstacle", {**obstacle, **healthy, **saturation}, held, OBSTACLE_GRID, prior,
+                                       logs),
+            "drive_friction": HypothesisSpec(
+                "drive_friction", {**{n: bounds[n] for n in FOLLOWED}, "bearing_friction": bounds["bearing_friction"],
+                                   **machine}, {**held, "motor.coulomb_friction_nm": c0},
+                tuple({"drive_friction_nm": f} for f in (0.02, 0.08, 0.2)), bearing_prior, logs),
+            "joint": HypothesisSpec(
+                "joint", {bolt_name: fault[bolt_name], **obstacle, **healthy, **saturation,
+                          "bearing_friction": bearing_fault, **machine}, held,
+                prior={**without, "motor.coulomb_friction_nm": prior["motor.coulomb_friction_nm"]}, log_prior=logs),
+        }
+
+    def background(self, direction: str) -> float:
+        """The other direction's bolt, as the throws that drive it estimated it (nominal when none did)."""
+        other = OTHER_DIRECTION[direction]
+        name = MODE_PARAMETERS[DRIVING_BOLT[other]][0]
+        verdict = self.latest.get(other)
+        if verdict is None or verdict.mode != DRIVING_BOLT[other]:
+            return FAULT_PARAMETERS[name].nominal
+        return verdict.estimates[verdict.mode].values[name]
+
+    def _report(self, direction: str, estimate: Estimate) -> Reported:
+        """Fault parameters relative to the baseline, each with the model's error added to the fit's."""
+        b0 = self.level(direction, "bearing_friction")
+        params, fit_std = {}, {}
+        for name in FAULT_PARAMETERS:
+            if name in estimate.params and (estimate.mode == "joint" or FAULT_PARAMETERS[name].mode == estimate.mode):
+                raw = estimate.values[name] - (b0 if name == "bearing_friction" else 0.0)
+                params[name] = self.errors.corrected(name, raw)
+                fit_std[name] = estimate.std[name] / (1.0 + self.errors.bias_relative.get(name, 0.0))
+        std = {name: float(np.hypot(fit_std[name], self.errors.std(name, params[name]))) for name in params}
+        nuisance = {name: estimate.values[name] for name in NUISANCES}
+        return Reported(estimate.mode, params, std, estimate.mse, (), nuisance, fit_std)
+
+    def _unobservable(self, direction: str, mse: float) -> Reported:
+        """The bolt this throw cannot see: its held value, flagged, no std (its hypothesis is the nominal one)."""
+        other = DRIVING_BOLT[OTHER_DIRECTION[direction]]
+        name = MODE_PARAMETERS[other][0]
+        return Reported(other, {name: self.background(direction)}, {}, mse, (name,))
+
+    # -- one throw ----------------------------------------------------------------------------
+    def diagnose(self, throw: ThrowInput) -> Outcome:
+        """The switch's decision after this throw (combining both directions), with this throw's verdict."""
         why = problem(throw)
         if why is not None:
             self.rail_m = None  # unknown where the blades are: assume the next throw starts closed
-            return "unknown", why, None
-        estimator, gains = self.estimator_for(round(sample_rate_hz(throw.t_s), 6), len(throw.t_s) - 1)
+            return Outcome("unknown", why, None, None)
         start_rail = self.rail_m if self.rail_m is not None else CLOSED_START_M[throw.direction]
-        m = Measurement(throw.direction, throw.reference, throw.signals[1:], start_angle(throw.t_s, throw.signals),
-                        start_rail, self.background(throw.direction))
-        estimates = estimator.fit_all(m)
-        mode, found = judge(throw.direction, estimates, gains[throw.direction])
-        fitted = estimator.simulate(m, estimates[mode].params)
-        end_rail = float(fitted.pop("final_state")[4])
-        verdict = ThrowVerdict(throw.direction, mode, found, estimates, end_rail, fitted)
+        m = Measurement(throw.direction, throw.reference, throw.t_s[1:], throw.signals[1:],
+                        start_angle(throw.t_s, throw.signals), start_rail)
+        provisional = not self.baseline.complete
+        weight = self.prior.model_weight if provisional else self.baseline.model_weight()
+        estimates = self.estimator.fit_all(m, self.specs(throw.direction), weight)
+        mode, found = judge(throw.direction, estimates, self._gains(throw.direction), self.evidence)
+        for name, seen in found.items():
+            self.evidence[name] = [seen, *self.evidence.get(name, [])][:EVIDENCE_THROWS]
+        fitted = self.estimator.simulate(m, estimates[mode].values)
+        reported = {name: self._report(throw.direction, e) for name, e in estimates.items()}
+        hidden = self._unobservable(throw.direction, estimates["nominal"].mse)
+        reported[hidden.mode] = hidden
+        verdict = ThrowVerdict(throw.index, throw.direction, mode, found, estimates, reported,
+                               float(fitted["rail_position_m"][-1]), fitted, provisional)
         self.latest[throw.direction] = verdict
-        self.rail_m = end_rail
+        self.rail_m = verdict.end_rail_m
+        if mode == "nominal":
+            nominal = estimates["nominal"]
+            self.baseline.follow(DRIFTING, nominal.values[DRIFTING])
+            if provisional:
+                levels = {name: nominal.values[name] for name in (*BASELINED, DRIFTING)}
+                self.baseline.add(throw.direction, levels, healthy_gains(estimates), nominal.mse / nominal.effective_samples)
         decision, reason = self.combined()
-        return decision, reason, verdict
+        health = self.health.update(throw.index, self._health_estimates(verdict))
+        return Outcome(decision, self._provisional_note(reason, provisional), verdict, self._follow(decision, verdict),
+                       health)
 
-    def background(self, direction: str) -> dict[str, float]:
-        """The other direction's bolt as its latest throw estimated it (this throw cannot show it)."""
-        other = OTHER_DIRECTION[direction]
-        verdict = self.latest.get(other)
-        if verdict is None or verdict.mode != DRIVING_BOLT[other]:
-            return {}
-        return dict(verdict.estimates[verdict.mode].params)
+    def _health_estimates(self, verdict: ThrowVerdict) -> dict[str, tuple[float, float]]:
+        """Each tracked parameter as its own hypothesis estimated it in this throw, if the throw could see it."""
+        out = {}
+        for name in TRACKED:
+            mode = FAULT_PARAMETERS[name].mode
+            reported = verdict.reported.get(mode)
+            if reported is not None and name in reported.params and not reported.unobservable:
+                out[name] = (reported.params[name], reported.fit_std[name])
+        return out
+
+    def _provisional_note(self, reason: str | None, provisional: bool) -> str | None:
+        notes = [reason] if reason else []
+        if provisional:
+            seen = sum(min(self.baseline.count(d), self.baseline.needed) for d in DIRECTIONS)
+            notes.append(f"provisional: commissioning {seen} of {self.baseline.needed * len(DIRECTIONS)}")
+        outside = self.outside_population()
+        if outside:
+            notes.append("baseline outside the population: " + ", ".join(outside))
+        return "; ".join(notes) or None
 
     def combined(self) -> tuple[str, str | None]:
         """Nominal if the latest throw in each direction is; else the fault with the strongest evidence."""
@@ -123,3 +497,37 @@ class SwitchDiagnoser:
             reason += "; also " + ", ".join(others)
         return strongest.mode, reason
 
+    # -- the decided fault over throws ------------------------------------------------------------
+    def _follow(self, decision: str, verdict: ThrowVerdict) -> Combined | None:
+        """Keep the throws since the decided fault appeared; combine those that can see it."""
+        if decision in ("nominal", "unknown"):
+            self.track.clear()
+            return None
+        if self.track and self.track[0].mode != decision and not any(v.mode == decision for v in self.track):
+            self.track.clear()
+        self.track.append(verdict)
+        seeing = [v for v in self.track if observable(decision, v.direction) and v.mode == decision]
+        if not seeing:
+            return None
+        return self.combine(decision, seeing)
+
+    def combine(self, mode: str, verdicts: list[ThrowVerdict]) -> Combined:
+        """A mode's parameters over several throws: the fits weighted by their variances, the model's error
+        (the same in every throw) added once."""
+        params, std, fit_std = {}, {}, {}
+        for name in MODE_PARAMETERS[mode]:
+            values = np.array([v.reported[mode].params[name] for v in verdicts])
+            fit = np.array([max(v.reported[mode].fit_std[name], 1e-12) for v in verdicts])
+            weights = 1.0 / fit**2
+            mean = float(np.sum(weights * values) / np.sum(weights))
+            params[name], fit_std[name] = mean, float(np.sqrt(1.0 / np.sum(weights)))
+            std[name] = float(np.hypot(fit_std[name], self.errors.std(name, mean)))
+        return Combined(mode, params, std, len(verdicts), verdicts[0].index, fit_std)
+
+    # -- persistence ------------------------------------------------------------------------------
+    def state(self) -> dict:
+        """What a restarted diagnoser needs to resume this switch: its baseline."""
+        return {"baseline": self.baseline.to_dict()}
+
+    def resume(self, state: dict) -> None:
+        self.baseline = Baseline.from_dict(state["baseline"])

@@ -19,7 +19,6 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from railswitch.models.faults import fault_vector
 from railswitch.models.integrators import ros2
 from railswitch.models.least_squares import levenberg_marquardt
 from railswitch.models.plant import Plant
@@ -237,7 +236,7 @@ def switch_residuals(reduced, targets: list[SwitchTarget]) -> Callable:
     for target in targets:
         n = len(target.current_a)
         y, _ = reduced.rollout(n)(target.initial_state, reduced.reference_columns(target.reference, n),
-                                 fault_vector(), w)
+                                 reduced.vector(), w)
         blocks += [(y[0, :].T - target.current_a) / CURRENT_RESIDUAL_A,
                    (y[3, :].T - target.rail_position_m) / POSITION_RESIDUAL_M,
                    (y[4, :].T - target.rail_velocity_m_s) / VELOCITY_RESIDUAL_M_S]

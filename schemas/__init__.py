@@ -12,9 +12,19 @@ from railswitch.schemas.faults import (
     check_fault_name,
     check_fault_value,
 )
+from railswitch.schemas.plant import PLANT_PARAMETERS, check_plant_value
 from railswitch.schemas.messages import (
     CHANNEL_MODELS,
+    CONTRACT_VERSION,
     DEFAULT_ENDPOINT,
+    MAX_RECORD_SAMPLES,
+    ParameterHealth,
+    SwitchHealth,
+    ThrowRecord,
+    decode_counted,
+    CommissionCommand,
+    Commissioning,
+    FaultEstimate,
     SERVICE_PREFIX,
     Diagnosis,
     FaultCommand,
@@ -34,7 +44,18 @@ from railswitch.schemas.messages import (
 )
 
 __all__ = [
+    "PLANT_PARAMETERS",
+    "check_plant_value",
     "CHANNEL_MODELS",
+    "CONTRACT_VERSION",
+    "MAX_RECORD_SAMPLES",
+    "ParameterHealth",
+    "SwitchHealth",
+    "ThrowRecord",
+    "decode_counted",
+    "CommissionCommand",
+    "Commissioning",
+    "FaultEstimate",
     "DEFAULT_ENDPOINT",
     "SERVICE_PREFIX",
     "DECISIONS",

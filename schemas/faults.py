@@ -4,7 +4,7 @@ import math
 from dataclasses import dataclass
 from typing import Literal, get_args
 
-FaultMode = Literal["left_bolt", "right_bolt", "missing_bearing", "obstacle"]
+FaultMode = Literal["left_bolt", "right_bolt", "missing_bearing", "obstacle", "drive_friction"]
 Decision = Literal["nominal", FaultMode, "unknown"]
 
 FAULT_MODES: tuple[FaultMode, ...] = get_args(FaultMode)
@@ -35,6 +35,9 @@ FAULT_PARAMETERS: dict[str, FaultParameter] = {
         FaultParameter("obstacle_friction", "obstacle", "N·s/m", 0.0, 0.0, 300_000.0),
         # Nominal position is only a placeholder: it matters only when obstacle_friction > 0.
         FaultParameter("obstacle_position", "obstacle", "m", 1.10, 1.02, 1.18),
+        # Coulomb friction added inside the point machine (gearbox and motor wear), at the motor shaft;
+        # the range reaches 2.5 times the motor's own nominal 0.12 N·m.
+        FaultParameter("drive_friction_nm", "drive_friction", "N·m", 0.0, 0.0, 0.30),
     )
 }
 

@@ -15,6 +15,7 @@ from pydantic import (
     model_validator,
 )
 
+from railswitch.schemas.plant import PLANT_PARAMETERS, check_plant_values
 from railswitch.schemas.faults import (
     FAULT_MODES,
     FAULT_PARAMETERS,
@@ -64,22 +65,47 @@ Profile = Annotated[list[float], Field(min_length=2, max_length=10_000)]
 Direction = Literal["left_to_right", "right_to_left"]
 
 
-class Message(BaseModel):
-    """Common base: immutable, no unknown fields, no NaN or infinity anywhere."""
+CONTRACT_VERSION = 1  # of every message kind; docs/contracts.md says what a new version may change
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=True)
+
+class Message(BaseModel):
+    """Common base: immutable, no NaN or infinity anywhere, unknown fields ignored.
+
+    A newer publisher may add fields: an older subscriber reads what it knows and drops the rest
+    (decode_counted names them, so services count them per field name). Every payload carries the
+    contract version it was written to."""
+
+    model_config = ConfigDict(extra="ignore", allow_inf_nan=False, frozen=True)
+
+    contract: Annotated[int, Field(ge=1, le=1000)] = CONTRACT_VERSION
+
+
+# Bounds far beyond any point machine (amperes, radians, rad/s): what lies outside is junk.
+Current = Annotated[float, Field(ge=-1e4, le=1e4)]
+Angle = Annotated[float, Field(ge=-1e6, le=1e6)]
+AngularVelocity = Annotated[float, Field(ge=-1e5, le=1e5)]
 
 
 class MotorSample(Message):
-    """One sample of the point machine's motor: current, angle and angular velocity."""
+    """One sample of the point machine's motor: current and, where the unit logs them, angle and angular
+    velocity (many installed monitoring units log the current alone)."""
 
     switch_id: SwitchId
     seq: Index
     t_ns: TimeNs
-    # Bounds far beyond any point machine (amperes, radians, rad/s): what lies outside is junk.
-    current_a: Annotated[float, Field(ge=-1e4, le=1e4)]
-    angle_rad: Annotated[float, Field(ge=-1e6, le=1e6)]
-    velocity_rad_s: Annotated[float, Field(ge=-1e5, le=1e5)]
+    current_a: Current
+    angle_rad: Angle | None = None
+    velocity_rad_s: AngularVelocity | None = None
+
+
+def _check_profile_breakpoints(t: list[float], velocity: list[float]) -> None:
+    """Breakpoints pair up, start at the throw's start and never go back in time."""
+    if len(t) != len(velocity):
+        raise ValueError("reference_t_s and reference_velocity_rad_s differ in length")
+    if t[0] != 0.0:
+        raise ValueError("reference_t_s must start at 0")
+    if any(b < a for a, b in zip(t, t[1:])):
+        raise ValueError("reference_t_s must be non-decreasing")
 
 
 class ThrowEvent(Message):
@@ -95,14 +121,7 @@ class ThrowEvent(Message):
 
     @model_validator(mode="after")
     def _check_profile(self) -> Self:
-        """Breakpoints pair up, start at the throw's start and never go back in time."""
-        t = self.reference_t_s
-        if len(t) != len(self.reference_velocity_rad_s):
-            raise ValueError("reference_t_s and reference_velocity_rad_s differ in length")
-        if t[0] != 0.0:
-            raise ValueError("reference_t_s must start at 0")
-        if any(b < a for a, b in zip(t, t[1:])):
-            raise ValueError("reference_t_s must be non-decreasing")
+        _check_profile_breakpoints(self.reference_t_s, self.reference_velocity_rad_s)
         return self
 
 
@@ -116,6 +135,9 @@ class FaultTruth(Message):
     bearing_friction: float = 0.0
     obstacle_friction: float = 0.0
     obstacle_position: float | None = None
+    drive_friction_nm: float = 0.0
+    # The switch's own build and weather where they are not nominal (schemas/plant.py), as simulated.
+    plant: Annotated[dict[str, float], AfterValidator(check_plant_values)] = {}
 
     @field_validator(*FAULT_PARAMETERS)
     @classmethod
@@ -124,7 +146,7 @@ class FaultTruth(Message):
         return None if value is None else check_fault_value(str(info.field_name), value)
 
     def params(self) -> dict[str, float]:
-        """All five parameters, obstacle_position falling back to its nominal when unset."""
+        """Every fault parameter, obstacle_position falling back to its nominal when unset."""
         values = self.model_dump(include=set(FAULT_PARAMETERS))
         if values["obstacle_position"] is None:
             values["obstacle_position"] = FAULT_PARAMETERS["obstacle_position"].nominal
@@ -155,13 +177,47 @@ class FaultCommand(Message):
         return self
 
 
+def _check_plant_names(values: dict[str, float]) -> dict[str, float]:
+    for name in values:
+        if name not in PLANT_PARAMETERS:
+            raise ValueError(f"unknown plant parameter {name!r}; accepted: {', '.join(PLANT_PARAMETERS)}")
+    return values
+
+
 class Hypothesis(Message):
-    """Parameters estimated under one fault mode (or all at once: joint) and the fit's error."""
+    """Parameters estimated under one fault mode (or all at once: joint) and the fit's error.
+
+    Fault parameters are departures from the switch's commissioned baseline. `unobservable` names the
+    ones this throw cannot see (a bolt in the throws it does not drive): their values are held, not
+    estimated, and carry no std. `nuisance` holds what the fit estimated of the switch's own build and
+    weather (plant parameter names)."""
 
     mode: Literal["nominal", FaultMode, "joint"]
     params: Annotated[dict[str, float], AfterValidator(_check_fault_names)]
     std: Annotated[dict[str, NonNegative], AfterValidator(_check_fault_names)] = {}
     mse: NonNegative
+    unobservable: list[str] = []
+    nuisance: Annotated[dict[str, float], AfterValidator(_check_plant_names)] = {}
+
+
+class FaultEstimate(Message):
+    """The decided fault's size, combined over the throws since it appeared that can see it."""
+
+    mode: FaultMode
+    params: Annotated[dict[str, float], AfterValidator(_check_fault_names)]
+    std: Annotated[dict[str, NonNegative], AfterValidator(_check_fault_names)] = {}
+    throws: Annotated[int, Field(ge=1)]  # how many throws were combined
+    since_throw: Index  # the first of them
+
+
+class Commissioning(Message):
+    """How far the switch's own baseline is: provisional (judged against the population) until `needed`
+    healthy throws each way have been seen, then commissioned (judged against its own baseline)."""
+
+    state: Literal["provisional", "commissioned"]
+    throws: dict[Direction, Index]
+    needed: Annotated[int, Field(ge=1)]
+    outside_population: list[str] = []  # baseline parameters far outside the population's spread
 
 
 class Diagnosis(Message):
@@ -177,6 +233,9 @@ class Diagnosis(Message):
     reason: str | None = None
     hypotheses: list[Hypothesis] = []
     joint: Hypothesis | None = None
+    estimate: FaultEstimate | None = None  # the decided fault over the throws that see it
+    commissioning: Commissioning | None = None
+    signals: list[Literal["current_a", "angle_rad", "velocity_rad_s"]] = []  # what the throw's fit used
     latency_ms: NonNegative
 
     @model_validator(mode="after")
@@ -186,6 +245,89 @@ class Diagnosis(Message):
             raise ValueError("t_end_ns is before t_start_ns")
         if self.decision == "unknown" and not (self.reason and self.reason.strip()):
             raise ValueError("decision 'unknown' needs a non-empty reason")
+        return self
+
+
+class CommissionCommand(Message):
+    """Restart a switch's commissioning (after maintenance): its baseline is learnt again from the next throws."""
+
+    switch_id: SwitchId
+    reason: Annotated[str, Field(max_length=500)] | None = None
+
+
+MaybeNonNegative = NonNegative | None
+
+
+class ParameterHealth(Message):
+    """One fault parameter's trend: level (a departure from the baseline) and slope with their standard
+    deviations, its maintenance limit, the throws left until it reaches it (median and a 5 %-95 % interval;
+    null when it is not heading there) and its own state."""
+
+    name: str
+    level: float
+    level_std: MaybeNonNegative = None
+    slope_per_100: float = 0.0
+    slope_std_per_100: MaybeNonNegative = None
+    limit: float
+    throws_to_limit: MaybeNonNegative = None
+    throws_to_limit_low: MaybeNonNegative = None
+    throws_to_limit_high: MaybeNonNegative = None
+    state: Literal["ok", "watch", "alarm"] = "ok"
+
+    @field_validator("name")
+    @classmethod
+    def _check_name(cls, value: str) -> str:
+        return check_fault_name(value)
+
+
+class SwitchHealth(Message):
+    """A switch's health after a throw (railswitch/<id>/health): each fault parameter fused over its throws,
+    the worst one and the switch's state."""
+
+    switch_id: SwitchId
+    throw_index: Index  # the throw it refers to
+    t_ns: TimeNs  # that throw's end
+    model: RailModel
+    state: Literal["ok", "watch", "alarm"]
+    worst: str | None = None  # the parameter closest to its limit
+    throws_to_limit: MaybeNonNegative = None  # the worst parameter's
+    parameters: list[ParameterHealth] = []
+
+
+MAX_RECORD_SAMPLES = 20_000  # 15 s at 1 kHz and then some; a larger record is junk
+RecordValues = Annotated[list[float], Field(min_length=2, max_length=MAX_RECORD_SAMPLES)]
+
+
+class ThrowRecord(Message):
+    """One whole throw as a trackside unit uploads it (railswitch/<id>/record): its direction, reference
+    profile and the motor's samples at times from the throw's start (the sample at 0 is the last at rest),
+    current and, where logged, angle and angular velocity."""
+
+    switch_id: SwitchId
+    throw_index: Index
+    direction: Direction
+    t_start_ns: TimeNs
+    t_end_ns: TimeNs
+    reference_t_s: Profile
+    reference_velocity_rad_s: Profile
+    t_offset_ns: Annotated[list[Annotated[int, Field(ge=0)]], Field(min_length=2, max_length=MAX_RECORD_SAMPLES)]
+    current_a: Annotated[list[Current], Field(min_length=2, max_length=MAX_RECORD_SAMPLES)]
+    angle_rad: Annotated[list[Angle], Field(min_length=2, max_length=MAX_RECORD_SAMPLES)] | None = None
+    velocity_rad_s: Annotated[list[AngularVelocity], Field(min_length=2, max_length=MAX_RECORD_SAMPLES)] | None = None
+
+    @model_validator(mode="after")
+    def _check_samples(self) -> Self:
+        """Signals as long as their times, times going forward within the throw, a profile like a ThrowEvent's."""
+        n = len(self.t_offset_ns)
+        for name in ("current_a", "angle_rad", "velocity_rad_s"):
+            values = getattr(self, name)
+            if values is not None and len(values) != n:
+                raise ValueError(f"{name} has {len(values)} samples for {n} times")
+        if any(b <= a for a, b in zip(self.t_offset_ns, self.t_offset_ns[1:])):
+            raise ValueError("t_offset_ns must increase")
+        if self.t_end_ns < self.t_start_ns or self.t_offset_ns[-1] > self.t_end_ns - self.t_start_ns:
+            raise ValueError("samples after the throw's end, or an end before its start")
+        _check_profile_breakpoints(self.reference_t_s, self.reference_velocity_rad_s)
         return self
 
 
@@ -199,6 +341,7 @@ class ServiceStatus(Message):
     received: Index  # payloads taken off the bus
     rejected: dict[str, Index] = {}  # per reason
     counters: dict[str, Index] = {}  # the service's own, e.g. diagnosed, written
+    ignored_fields: dict[str, Index] = {}  # unknown fields of accepted payloads (a newer publisher's), per name
 
 
 CHANNEL_MODELS: dict[str, type[Message]] = {
@@ -207,6 +350,9 @@ CHANNEL_MODELS: dict[str, type[Message]] = {
     "truth": FaultTruth,
     "diagnosis": Diagnosis,
     "inject": FaultCommand,
+    "commission": CommissionCommand,
+    "health": SwitchHealth,
+    "record": ThrowRecord,
 }
 
 KEY_PREFIX = "railswitch"
@@ -247,6 +393,17 @@ class MessageError(ValueError):
 def encode(msg: BaseModel) -> bytes:
     """Compact UTF-8 JSON of a message, as published on the bus and stored in MCAP."""
     return msg.model_dump_json().encode()
+
+
+def decode_counted(model_cls: type[M], data: bytes) -> tuple[M, list[str]]:
+    """decode, and the names of the payload's top-level fields the model does not know (a newer publisher's)."""
+    message = decode(model_cls, data)
+    try:
+        names = json.loads(data)
+    except ValueError:  # decode accepted it: cannot happen
+        return message, []
+    known = model_cls.model_fields
+    return message, sorted(name for name in names if name not in known) if isinstance(names, dict) else []
 
 
 def decode(model_cls: type[M], data: bytes) -> M:

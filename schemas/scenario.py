@@ -13,6 +13,8 @@ Example (throw numbers are the 0-based `throw_index` of the messages):
     id = "sw2"
     throws = 6
     faults = { left_bolt_offset = 0.05 }          # from the start
+    vary = 17                                     # a switch drawn from the population (seed 17) ...
+    plant = { "motor.supply_v" = 99.0 }           # ... with these of its own parameters set
 
     [[switches.changes]]
     throw = 2                                     # before throw 2 ...
@@ -21,7 +23,10 @@ Example (throw numbers are the 0-based `throw_index` of the messages):
     [[switches.changes]]
     throw = 3                                     # gradual degradation: before each of throws 3 to 5
     until = 5
-    add = { bearing_friction = 500.0 }
+    add = { bearing_friction = 500.0, "rail.chair_friction_coefficient" = 0.004 }
+
+`set` and `add` take fault parameters and the switch's own parameters alike (the dotted names
+of schemas/plant.py), so a cold night or chairs drying out are changes like any other.
 """
 
 import tomllib
@@ -32,10 +37,38 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationErr
 
 from railswitch.schemas.faults import FAULT_PARAMETERS, check_fault_value
 from railswitch.schemas.messages import SwitchId, _check_fault_names, _check_fault_values
+from railswitch.schemas.plant import PLANT_PARAMETERS, check_plant_value, check_plant_values
 
 THROW_S = 7.0  # a throw's duration (models/reference.py THROW_DURATION_S); an interval must exceed it
+
+
+def is_plant_name(name: str) -> bool:
+    """The switch's own parameters have dotted names (motor.supply_v); faults do not."""
+    return "." in name
+
+
+def check_setting(name: str, value: float) -> float:
+    return check_plant_value(name, value) if is_plant_name(name) else check_fault_value(name, value)
+
+
+def _check_settings(values: dict[str, float]) -> dict[str, float]:
+    return {name: check_setting(name, value) for name, value in values.items()}
+
+
+def _check_setting_names(values: dict[str, float]) -> dict[str, float]:
+    for name in values:
+        if is_plant_name(name):
+            if name not in PLANT_PARAMETERS:
+                raise ValueError(f"unknown plant parameter {name!r}; accepted: {', '.join(PLANT_PARAMETERS)}")
+        else:
+            _check_fault_names({name: 0.0})
+    return values
+
+
 FaultValues = Annotated[dict[str, float], AfterValidator(_check_fault_values)]
-FaultSteps = Annotated[dict[str, float], AfterValidator(_check_fault_names)]
+PlantValues = Annotated[dict[str, float], AfterValidator(check_plant_values)]
+Settings = Annotated[dict[str, float], AfterValidator(_check_settings)]
+SettingSteps = Annotated[dict[str, float], AfterValidator(_check_setting_names)]
 
 
 class _Strict(BaseModel):
@@ -47,9 +80,9 @@ class FaultChange(_Strict):
 
     throw: Annotated[int, Field(ge=0)]
     until: Annotated[int, Field(ge=0)] | None = None
-    set: FaultValues = {}
-    add: FaultSteps = {}
-    reset: bool = False
+    set: Settings = {}
+    add: SettingSteps = {}
+    reset: bool = False  # faults back to none (the switch's own parameters stay)
 
     @model_validator(mode="after")
     def _check(self) -> Self:
@@ -66,37 +99,41 @@ class FaultChange(_Strict):
 
 
 class SwitchPlan(_Strict):
-    """One switch: how many throws, its faults at the start and the changes over its throws."""
+    """One switch: how many throws, its faults and own parameters at the start, and the changes over its throws."""
 
     id: SwitchId
     throws: Annotated[int, Field(ge=1, le=1_000_000)]
     faults: FaultValues = {}
+    vary: Annotated[int, Field(ge=0, lt=2**32)] | None = None  # draw the switch from the population (seed)
+    plant: PlantValues = {}  # its own parameters (over the drawn ones)
     changes: list[FaultChange] = []
 
-    def faults_before(self, throw: int, current: dict[str, float]) -> dict[str, float]:
-        """The faults for `throw`, given those in force after the previous one; ValueError out of range."""
-        faults = dict(current)
+    def settings_before(self, throw: int, current: dict[str, float], base: dict[str, float] | None = None) -> dict[str, float]:
+        """Faults and own parameters for `throw`, given those in force after the previous one (`base`: the values
+        a parameter not yet set steps from, the switch's own); ValueError out of range."""
+        settings = dict(current)
         for change in self.changes:
             once, stepping = change.applies_to(throw)
             if once and change.reset:
-                faults = {}
+                settings = {name: value for name, value in settings.items() if is_plant_name(name)}
             if once:
-                faults.update(change.set)
+                settings.update(change.set)
             if stepping:
                 for name, step in change.add.items():
-                    value = faults.get(name, FAULT_PARAMETERS[name].nominal) + step
+                    start = (base or {}).get(name, PLANT_PARAMETERS[name].nominal if is_plant_name(name)
+                                             else FAULT_PARAMETERS[name].nominal)
                     try:
-                        faults[name] = check_fault_value(name, value)
+                        settings[name] = check_setting(name, settings.get(name, start) + step)
                     except ValueError as error:
                         raise ValueError(f"switch {self.id} before throw {throw}: {error}") from None
-        return faults
+        return settings
 
-    def schedule(self) -> list[dict[str, float]]:
-        """The faults of every throw, as the scenario alone would have them."""
-        faults, out = dict(self.faults), []
+    def schedule(self, base: dict[str, float] | None = None) -> list[dict[str, float]]:
+        """The settings of every throw, as the scenario alone would have them (`base`: the switch's own)."""
+        settings, out = {**self.faults, **self.plant}, []
         for throw in range(self.throws):
-            faults = self.faults_before(throw, faults)
-            out.append(faults)
+            settings = self.settings_before(throw, settings, base)
+            out.append(settings)
         return out
 
 

@@ -54,6 +54,9 @@ class StoredModel:
     training: dict
     bearing_port: BearingPort
     validation: dict  # the quick validation (models/validation.py); empty when never made
+    healthy_gains: dict  # per direction and mode: what a fault mode's fit gains on healthy population throws
+    error_model: dict  # {"absolute": {...}, "relative": {...}}: the model's error on each fault parameter
+    model_weight: float  # healthy throws' nominal MSE over effective samples (the priors' weight)
     path: Path
 
     @property
@@ -68,7 +71,10 @@ def load(name: str) -> StoredModel:
     weights = representation.flatten({k: np.array(v) for k, v in document["weights"].items()})
     port = document.get("bearing_port", NEUTRAL_PORT)  # one gain and offset may serve both directions
     bearing = {d: {key: float(port.get(d, port)[key]) for key in ("gain", "offset_s_m")} for d in DIRECTIONS}
-    return StoredModel(representation, weights, document["training"], bearing, document.get("validation", {}), path)
+    calibration = document.get("calibration", {})
+    return StoredModel(representation, weights, document["training"], bearing, document.get("validation", {}),
+                       calibration.get("healthy_gains", {}), calibration.get("error_model", {}),
+                       float(calibration.get("model_weight", 0.0)), path)
 
 
 def weights_document(representation: Representation, weights: np.ndarray, training: dict) -> dict:

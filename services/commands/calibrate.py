@@ -1,9 +1,11 @@
-"""`railswitch calibrate`: refit the reduced models' bearing-fault port on plant throws."""
+"""`railswitch calibrate`: calibrate the reduced models against the plant over the population: the
+bearing-fault port, what a healthy switch's fit leaves, and the model's error on each fault parameter."""
 from __future__ import annotations
 
 import argparse
 
 from railswitch.models.reference import DIRECTIONS
+from railswitch.schemas.faults import FAULT_PARAMETERS
 from railswitch.services.commands.options import add_model_argument, fail, models_named
 from railswitch.services.core.model_maintenance import calibrate_and_save
 
@@ -18,10 +20,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     try:
         for name in models_named(args.model):
-            path, port = calibrate_and_save(name, replace_shipped=args.replace_shipped)
+            path, found = calibrate_and_save(name, replace_shipped=args.replace_shipped)
+            port, errors = found["bearing_port"], found["calibration"]["error_model"]
             ports = ", ".join(f"{d.replace('_', ' ')}: gain {port[d]['gain']:.4f}, offset {port[d]['offset_s_m']:.1f} N·s/m"
                               for d in DIRECTIONS)
-            print(f"{name}: bearing port {ports} -> {path}")
+            model = ", ".join(f"{n} bias {errors['bias'][n]:+.3g} {FAULT_PARAMETERS[n].unit} {errors['bias_relative'][n]:+.1%}, "
+                              f"std {errors['absolute'][n]:.3g} {FAULT_PARAMETERS[n].unit} + {errors['relative'][n]:.1%}"
+                              for n in errors["absolute"])
+            print(f"{name}: bearing port {ports}; model error {model} -> {path}")
     except OSError as error:
         return fail(f"cannot write the calibration: {error}")
     return 0

@@ -25,6 +25,7 @@ COMMANDS: dict[str, str] = {  # name (and module) -> help
     "recorder": "record railswitch/** to an MCAP file",
     "replay": "republish a recording's motor, throw and truth messages",
     "watch": "live table of diagnoses",
+    "commission": "restart a switch's commissioning after maintenance (its baseline is learnt again)",
     "demo": "router, simulator, diagnoser and recorder with a live table and summary",
 }
 

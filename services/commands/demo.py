@@ -1,9 +1,10 @@
 """`railswitch demo`: the whole product on one machine, ending with a summary.
 
 An embedded Zenoh router runs in this process; the diagnoser, recorder and simulator run
-as separate `railswitch` processes connected to it. Every switch throws nominally for the
-first half of its throws and then with one fault mode (cycling through the four), so the
-summary can hold each decision against the injected truth.
+as separate `railswitch` processes connected to it. Every switch is drawn from the population
+of real switches (not the model's twin) and throws healthily until commissioned, then with one
+fault mode (cycling through the five), so the summary can hold each decision against the
+injected truth.
 """
 from __future__ import annotations
 
@@ -23,6 +24,7 @@ from rich.live import Live
 from rich.table import Table
 
 from railswitch.models.estimation import DRIVING_BOLT
+from railswitch.models.switch_diagnosis import COMMISSIONING_THROWS
 from railswitch.schemas import Diagnosis, FaultTruth
 from railswitch.services.adapters.zenoh_bus import BusError, BusOptions, Inbox, configure_logging, open_session, stop_on_signals
 from railswitch.services.adapters.recordings import RecordingPathError, check_writable
@@ -33,25 +35,34 @@ from railswitch.services.commands.watch import diagnosis_line, diagnosis_table
 
 log = logging.getLogger("railswitch.demo")
 
-DEMO_FAULTS = (  # the paper's four scenarios
+DEMO_FAULTS = (  # the paper's four scenarios, and a worn point machine
     {"left_bolt_offset": 0.05},
     {"right_bolt_offset": 0.20},
     {"bearing_friction": 5000.0},
     {"obstacle_friction": 1.0e5, "obstacle_position": 1.10},
+    {"drive_friction_nm": 0.1},
 )
+NOISE = 0.01
 INTERVAL_S = 10.0
 READY_TIMEOUT_S = 300.0  # a diagnoser on a machine without the compiled-model cache needs a while
 DRAIN_TIMEOUT_S = 60.0
 
 
+def fault_onset(throws: int) -> int:
+    """The throw the demo's faults start at: once the switches are commissioned, when there are throws enough."""
+    commissioning = 2 * COMMISSIONING_THROWS
+    return commissioning if throws > commissioning else throws // 2
+
+
 def demo_scenario(switches: int, throws: int) -> str:
-    """TOML for `railswitch simulator --scenario`: nominal first half, then fault mode k mod 4."""
-    lines = [f"interval_s = {INTERVAL_S}", ""]
+    """TOML for `railswitch simulator --scenario`: switches drawn from the population, 1 % noise, healthy until
+    fault_onset, then fault mode k mod 5."""
+    lines = [f"interval_s = {INTERVAL_S}", f"noise = {NOISE}", ""]
     for k in range(switches):
         faults = DEMO_FAULTS[k % len(DEMO_FAULTS)]
         values = ", ".join(f"{name} = {value!r}" for name, value in faults.items())
-        lines += ["[[switches]]", f'id = "sw{k + 1}"', f"throws = {throws}", "",
-                  "[[switches.changes]]", f"throw = {throws // 2}", f"set = {{ {values} }}", ""]
+        lines += ["[[switches]]", f'id = "sw{k + 1}"', f"throws = {throws}", f"vary = {k + 1}", "",
+                  "[[switches.changes]]", f"throw = {fault_onset(throws)}", f"set = {{ {values} }}", ""]
     return "\n".join(lines)
 
 
@@ -107,9 +118,10 @@ class Outcome:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--switches", type=bounded(int, 1, 50), default=4)
-    parser.add_argument("--throws", type=bounded(int, 2, 1000), default=4, help="throws per switch")
-    parser.add_argument("--speed", type=bounded(float, 0.1, 1000.0, "x real time"), default=1.0)
+    parser.add_argument("--switches", type=bounded(int, 1, 50), default=5)
+    parser.add_argument("--throws", type=bounded(int, 2, 1000), default=10,
+                        help="throws per switch (the first 8 commission it, when there are more)")
+    parser.add_argument("--speed", type=bounded(float, 0.1, 1000.0, "x real time"), default=2.0)
     parser.add_argument("--out", default="demo.mcap", metavar="F.mcap")
     parser.add_argument("--listen", default=None, metavar="ENDPOINT",
                         help="endpoint of the embedded router (default: a free loopback port)")
@@ -140,7 +152,8 @@ def run(args: argparse.Namespace) -> int:
         try:
             inbox = Inbox(router, ["railswitch/*/diagnosis", "railswitch/*/truth"])
             console.print(f"router on {listen}; starting diagnoser ({args.model}) and recorder ({out})")
-            processes.start("diagnoser", "--connect", connect, "--model", args.model)
+            processes.start("diagnoser", "--connect", connect, "--model", args.model,
+                            "--state", str(scratch_dir / "baselines"))  # each demo commissions its switches afresh
             processes.start("recorder", "--connect", connect, "--out", str(out))
             wait_ready(router, processes, READY_TIMEOUT_S, stop=stop, diagnoser=1, recorder=1)
             if not stop.is_set():

@@ -16,30 +16,58 @@ from railswitch.services.commands.options import add_model_argument
 
 
 def key_estimate(item: DiagnosedThrow) -> str:
-    """The decided mode's parameters with their standard deviations."""
-    verdict = item.verdict
-    mode = item.diagnosis.decision
-    if verdict is None or mode not in verdict.estimates or mode == "nominal":
+    """The decided fault's size over the throws that see it, with standard deviations."""
+    estimate = item.diagnosis.estimate
+    if estimate is None:
         return ""
-    estimate = verdict.estimates[mode]
     return ", ".join(f"{name}={value:.4g}±{estimate.std[name]:.2g}" for name, value in estimate.params.items())
 
 
-def diagnose_file(path: str, model: str = "poly", jsonl: bool = False) -> int:
-    """Diagnose a recording; 1 when nothing could be read, else 0."""
-    stderr = Console(stderr=True)
+def read_messages(path: str) -> list | None:
+    """A recording's messages, damage said in one line; None when the file is not there."""
     if not Path(path).is_file():
         print(f"railswitch diagnose: {path}: no such file", file=sys.stderr)
-        return 2
+        return None
     recording = load_recording(path)
-    messages = recording.messages
     note = recording.note()
     if note:
         print(f"railswitch diagnose: {path}: {note}", file=sys.stderr)  # one line, never wrapped
+    return recording.messages
+
+
+def commission_from(diagnoser: Diagnoser, messages: list, switches: set[str]) -> None:
+    """Learn the baselines of a recording of healthy throws, for the switches of the same ids; a recording of
+    one switch commissions every switch."""
+    for _ in diagnose_messages(messages, diagnoser):
+        pass
+    learnt = dict(diagnoser.switches)
+    if len(learnt) == 1:
+        (state,) = (switch.state() for switch in learnt.values())
+        for switch_id in switches:
+            diagnoser.switch(switch_id).resume(state)
+    for switch_id in set(learnt) - switches:
+        del diagnoser.switches[switch_id]
+    for switch_id in switches & set(learnt):
+        diagnoser.switches[switch_id].latest.clear()  # the baseline stays; the recording's own throws start afresh
+        diagnoser.switches[switch_id].rail_m = None
+
+
+def diagnose_file(path: str, model: str = "poly", jsonl: bool = False, baseline: str | None = None) -> int:
+    """Diagnose a recording (after commissioning from `baseline`, a recording of the healthy switch);
+    1 when nothing could be read, else 0."""
+    stderr = Console(stderr=True)
+    messages = read_messages(path)
+    if messages is None:
+        return 2
     if not messages:
         return 1
+    healthy = read_messages(baseline) if baseline else []
+    if healthy is None:
+        return 2
     throws = sum(isinstance(m, ThrowEvent) and m.phase == "start" for m in messages)
     diagnoser = Diagnoser(model)
+    if healthy:
+        commission_from(diagnoser, healthy, {m.switch_id for m in messages if hasattr(m, "switch_id")})
     table = Table("switch", "throw", "direction", "decision", "estimate ± std", "MSE", "ms", "truth", "reason",
                   title=f"{Path(path).name} ({model})")
     with Progress(console=stderr, transient=True, disable=not stderr.is_terminal) as progress:
@@ -53,7 +81,7 @@ def diagnose_file(path: str, model: str = "poly", jsonl: bool = False) -> int:
                 sys.stdout.write(encode(d).decode() + "\n")
                 sys.stdout.flush()
                 continue
-            decided = next((h for h in d.hypotheses if h.mode == d.decision), None)
+            decided = next((h for h in d.hypotheses if h.mode == (d.decision if d.estimate else "nominal")), None)
             truth = item.throw.truth
             truth_text = "" if truth is None else (", ".join(truth.active_modes()) or "nominal")
             table.add_row(d.switch_id, str(d.throw_index), "L→R" if d.direction == "left_to_right" else "R→L",
@@ -71,7 +99,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("recording", metavar="F.mcap")
     add_model_argument(parser)
     parser.add_argument("--jsonl", action="store_true", help="one Diagnosis JSON object per throw on stdout")
+    parser.add_argument("--baseline", metavar="G.mcap", default=None,
+                        help="commission first from a recording of the healthy switch (one switch: every switch)")
 
 
 def run(args: argparse.Namespace) -> int:
-    return diagnose_file(args.recording, model=args.model, jsonl=args.jsonl)
+    return diagnose_file(args.recording, model=args.model, jsonl=args.jsonl, baseline=args.baseline)

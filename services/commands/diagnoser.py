@@ -11,6 +11,7 @@ import logging
 import threading
 import time
 
+from railswitch.services.adapters.baseline_store import BaselineStore
 from railswitch.services.adapters.zenoh_bus import BusOptions, Inbox, Publishers, StatusReporter, declare_service, open_session
 from railswitch.services.commands.options import add_model_argument, add_service_arguments, run_service
 from railswitch.services.core.fleet_diagnoser import Diagnoser
@@ -21,17 +22,19 @@ log = logging.getLogger("railswitch.diagnoser")
 
 
 def run_diagnoser(options: BusOptions, *, model: str, shard: tuple[int, int], stop: threading.Event,
-                  status_s: float = 5.0) -> int:
+                  status_s: float = 5.0, state: str | None = None) -> int:
     """Diagnose until stop is set; returns the number of diagnoses published."""
     session = open_session(options, stop=stop)
     try:
         publishers = Publishers(session)
         inbox = Inbox(session, ["railswitch/*/*"])  # one subscription keeps samples and events in order
-        diagnoser = Diagnoser(model)
+        baselines = BaselineStore(model, state)
+        diagnoser = Diagnoser(model, on_baseline=baselines.save, stored_baseline=baselines.load)
         started = time.monotonic()
         diagnoser.warm_up()
-        log.info("model %s ready in %.1f s; shard %d/%d", model, time.monotonic() - started, *shard)
-        live = LiveDiagnoser(diagnoser, publishers, shard)
+        log.info("model %s ready in %.1f s; shard %d/%d; baselines in %s", model, time.monotonic() - started, *shard,
+                 baselines.folder)
+        live = LiveDiagnoser(diagnoser, publishers, shard, known=baselines.known)
         token = declare_service(session, "diagnoser")  # declared once ready: waiters know throws will be served
         status = StatusReporter(publishers, "diagnoser", live.intake, status_s)
         for item in inbox.drain(stop):
@@ -58,8 +61,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_model_argument(parser)
     parser.add_argument("--shard", type=shard, default=(1, 1), metavar="K/N",
                         help="serve only switches in shard K of N (stable hash of the switch id)")
+    parser.add_argument("--state", metavar="DIR", default=None,
+                        help="where each switch's commissioned baseline is kept, so a restart resumes it "
+                             "(default $RAILSWITCH_STATE, else ~/.local/state/railswitch/baselines)")
 
 
 def run(args: argparse.Namespace) -> int:
     return run_service(lambda options, stop: run_diagnoser(options, model=args.model, shard=args.shard, stop=stop,
-                                                           status_s=args.status_interval), args)
+                                                           status_s=args.status_interval, state=args.state), args)

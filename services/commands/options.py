@@ -11,7 +11,7 @@ import os
 import sys
 from collections.abc import Callable
 
-from railswitch.schemas import DEFAULT_ENDPOINT, RAIL_MODELS, check_fault_value, check_switch_id
+from railswitch.schemas import DEFAULT_ENDPOINT, RAIL_MODELS, check_fault_value, check_plant_value, check_switch_id
 
 MODES = ("client", "peer", "router")  # Zenoh's session modes
 
@@ -50,6 +50,50 @@ def fault_assignment(text: str) -> tuple[str, float]:
         return name, check_fault_value(name.strip(), value.strip())
     except ValueError as error:
         raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def plant_assignment(text: str) -> tuple[str, float]:
+    """NAME=VALUE with NAME one of a switch's own parameters (group.field, schemas/plant.py) and VALUE in its range."""
+    name, sep, value = text.partition("=")
+    if not sep:
+        raise argparse.ArgumentTypeError(f"{text!r} is not NAME=VALUE")
+    try:
+        return name.strip(), check_plant_value(name.strip(), value.strip())
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def add_own_arguments(parser: argparse.ArgumentParser) -> None:
+    """A switch's own build and weather: --plant NAME=VALUE and --vary SEED."""
+    parser.add_argument("--plant", type=plant_assignment, action="append", default=[], metavar="NAME=VALUE",
+                        help="a switch's own parameter, e.g. motor.supply_v=99 (repeatable; `railswitch describe` "
+                             "lists them)")
+    parser.add_argument("--vary", type=bounded(int, 0, 2**32 - 1), default=None, metavar="SEED",
+                        help="draw each switch from the population of real switches (switch k: SEED + k)")
+
+
+def scenario_from_args(args: argparse.Namespace, default_throws: int = 1_000_000):
+    """The --scenario file, or a scenario built from the simple options (`--vary S` draws switch k with seed S + k)."""
+    from railswitch.schemas.scenario import Scenario, ScenarioError, SwitchPlan, load_scenario
+
+    simple = {"switches": getattr(args, "switches", None), "switch_id": args.switch_id or None, "throws": args.throws,
+              "interval": getattr(args, "interval", None), "fault": args.fault or None, "noise": args.noise,
+              "rate": args.rate, "plant": args.plant or None, "vary": args.vary}
+    if args.scenario:
+        given = [f"--{name.replace('_', '-')}" for name, value in simple.items() if value is not None]
+        if given:
+            raise ScenarioError(f"--scenario excludes {', '.join(given)} (the file says it)")
+        return load_scenario(args.scenario)
+    switches = getattr(args, "switches", None)
+    if args.switch_id and switches is not None:
+        raise ScenarioError("give --switches N or --switch-id ID (repeatable), not both")
+    ids = args.switch_id or [f"sw{k + 1}" for k in range(switches or 1)]
+    if len(set(ids)) != len(ids):
+        raise ScenarioError(f"--switch-id repeats: {ids}")
+    plans = [SwitchPlan(id=i, throws=args.throws or default_throws, faults=dict(args.fault), plant=dict(args.plant),
+                        vary=None if args.vary is None else args.vary + k) for k, i in enumerate(ids)]
+    return Scenario(interval_s=getattr(args, "interval", None) or 10.0, rate_hz=args.rate or 50.0,
+                    noise=args.noise or 0.0, seed=args.seed, switches=plans)
 
 
 def switch_id(text: str) -> str:

@@ -1,7 +1,13 @@
-"""`railswitch simulate`: run the high-fidelity plant offline and write an MCAP recording."""
+"""`railswitch simulate`: run the high-fidelity plant offline and write an MCAP recording.
+
+Either one switch throwing back to back (`--switch-id`, `--throws`, `--fault`, `--plant`, `--vary`) or
+a scenario file's switches, throws, idle periods and changes (`--scenario`), as the live simulator
+would publish them, at no cost in waiting.
+"""
 from __future__ import annotations
 
 import argparse
+import heapq
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -10,9 +16,13 @@ from rich.progress import Progress
 
 from railswitch.models.plant import Plant
 from railswitch.models.switch import SwitchSimulation
+from railswitch.schemas.scenario import Scenario, ScenarioError, load_scenario
 from railswitch.services.adapters.recordings import RecordingPathError, RecordingWriter, check_writable
-from railswitch.services.commands.options import bounded, fail, fault_assignment, switch_id
+from railswitch.services.commands.options import add_own_arguments, bounded, fail, fault_assignment, switch_id
+from railswitch.services.core.simulated_fleet import SwitchStream, own_parameters, simulation
 from railswitch.services.core.switch_messages import switch_messages
+
+LEAD_S = 1.0  # samples at rest before a scenario's first throw, as the live simulator has them
 
 
 @dataclass(frozen=True)
@@ -25,13 +35,13 @@ class SimulationSummary:
 
 def simulate_to_mcap(out: str | Path, *, switch_id: str = "sw1", throws: int = 2, faults: dict[str, float] | None = None,
                      noise_rel: float = 0.0, seed: int = 0, rate_hz: float = 50.0, plant: Plant | None = None,
-                     progress=None) -> SimulationSummary:
-    """Simulate `throws` alternating throws and record motor, throw and truth channels.
+                     own: dict[str, float] | None = None, progress=None) -> SimulationSummary:
+    """Simulate `throws` alternating throws back to back and record motor, throw and truth channels.
 
     The file appears only when complete (written beside it, then renamed).
     """
     check_writable(out)
-    sim = SwitchSimulation(plant or Plant(), rate_hz=rate_hz, faults=faults, noise_rel=noise_rel, seed=seed)
+    sim = SwitchSimulation(plant or Plant(), rate_hz=rate_hz, faults=faults, noise_rel=noise_rel, seed=seed, own=own)
     with RecordingWriter(out) as writer:
         for key, message in switch_messages(switch_id, sim, throws, progress):
             writer.write(key, message)
@@ -40,12 +50,45 @@ def simulate_to_mcap(out: str | Path, *, switch_id: str = "sw1", throws: int = 2
     return SimulationSummary(path, throws, count, path.stat().st_size)
 
 
+def scenario_to_mcap(out: str | Path, scenario: Scenario, plant: Plant | None = None, progress=None) -> SimulationSummary:
+    """Every switch of a scenario, with its idle periods, staggered as the live simulator staggers them,
+    recorded in time order."""
+    check_writable(out)
+    plant = plant or Plant()
+    count = len(scenario.switches)
+    streams = [SwitchStream.start(plan, simulation(plant, plan, scenario, k), interval_s=scenario.interval_s,
+                                  offset_s=LEAD_S + k * scenario.interval_s / count)
+               for k, plan in enumerate(scenario.switches)]
+    with RecordingWriter(out) as writer:
+        merged = heapq.merge(*(_messages(stream, progress) for stream in streams), key=lambda item: item[0])
+        for _, key, message in merged:
+            writer.write(key, message)
+        written = writer.message_count
+    path = Path(out)
+    return SimulationSummary(path, sum(plan.throws for plan in scenario.switches), written, path.stat().st_size)
+
+
+def _messages(stream: SwitchStream, progress):
+    """A stream's messages in time order, throw after throw, until its plan is done."""
+    throws = 0
+    while not stream.done:
+        horizon = stream.pending[-1][0] if stream.pending else 0
+        for key, message in stream.due(horizon):
+            yield message.t_ns, key, message
+        if progress is not None and stream.throws_done > throws:
+            throws = stream.throws_done
+            progress()
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, help="MCAP file to write")
+    parser.add_argument("--scenario", metavar="F.toml", default=None,
+                        help="a schedule of switches, throws and changes (docs/contracts.md), instead of the options below")
     parser.add_argument("--switch-id", type=switch_id, default="sw1")
     parser.add_argument("--throws", type=bounded(int, 1, 10_000), default=2, help="alternating, left to right first")
     parser.add_argument("--fault", type=fault_assignment, action="append", default=[], metavar="NAME=VALUE",
                         help="inject a fault, e.g. left_bolt_offset=0.05 (repeatable)")
+    add_own_arguments(parser)
     parser.add_argument("--noise", type=bounded(float, 0.0, 0.5), default=0.0, metavar="REL",
                         help="Gaussian noise, std = REL x the signal's nominal peak")
     parser.add_argument("--seed", type=bounded(int, 0, 2**32 - 1), default=0)
@@ -54,11 +97,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     try:
+        scenario = load_scenario(args.scenario) if args.scenario else None
+    except ScenarioError as error:
+        return fail(str(error))
+    total = sum(plan.throws for plan in scenario.switches) if scenario else args.throws
+    try:
         with Progress(transient=True, disable=not sys.stderr.isatty()) as progress:
-            task = progress.add_task("simulating throws", total=args.throws)
-            summary = simulate_to_mcap(args.out, switch_id=args.switch_id, throws=args.throws, faults=dict(args.fault),
-                                       noise_rel=args.noise, seed=args.seed, rate_hz=args.rate,
-                                       progress=lambda: progress.advance(task))
+            task = progress.add_task("simulating throws", total=total)
+            advance = lambda: progress.advance(task)  # noqa: E731
+            if scenario is not None:
+                summary = scenario_to_mcap(args.out, scenario, progress=advance)
+            else:
+                from railswitch.schemas.scenario import SwitchPlan
+
+                own = own_parameters(SwitchPlan(id=args.switch_id, throws=1, plant=dict(args.plant), vary=args.vary))
+                summary = simulate_to_mcap(args.out, switch_id=args.switch_id, throws=args.throws, faults=dict(args.fault),
+                                           noise_rel=args.noise, seed=args.seed, rate_hz=args.rate, own=own,
+                                           progress=advance)
     except RecordingPathError as error:
         return fail(str(error))
     print(f"wrote {summary.path} ({summary.throws} throws, {summary.messages} messages, {summary.bytes} bytes)")

@@ -13,21 +13,23 @@ import threading
 import time
 
 from railswitch.models.plant import Plant
-from railswitch.models.switch import RecordedThrow, ReplayedSwitch, SwitchSimulation
+from railswitch.models.switch import RecordedThrow, ReplayedSwitch
 from railswitch.schemas import FaultCommand
-from railswitch.schemas.scenario import Scenario, ScenarioError, SwitchPlan, load_scenario
+from railswitch.schemas.scenario import Scenario
 from railswitch.services.adapters.recordings import load_recording
 from railswitch.services.adapters.zenoh_bus import BusOptions, Inbox, Publishers, StatusReporter, declare_service, open_session
 from railswitch.services.commands.options import (
+    add_own_arguments,
     add_service_arguments,
     bounded,
     fail,
     fault_assignment,
     run_service,
+    scenario_from_args,
     switch_id,
 )
 from railswitch.services.core.intake import Intake
-from railswitch.services.core.simulated_fleet import SwitchStream, recorded_throws
+from railswitch.services.core.simulated_fleet import SwitchStream, recorded_throws, simulation
 
 log = logging.getLogger("railswitch.simulator")
 
@@ -55,8 +57,7 @@ def run_simulator(options: BusOptions, scenario: Scenario, *, speed: float, stop
             if plant is None:
                 sim = ReplayedSwitch(library, rate_hz=scenario.rate_hz, start_ns=start_ns, first=k)
             else:
-                sim = SwitchSimulation(plant, rate_hz=scenario.rate_hz, faults=plan.faults, noise_rel=scenario.noise,
-                                       seed=scenario.seed + k, start_ns=start_ns)
+                sim = simulation(plant, plan, scenario, k, start_ns)
             streams[plan.id] = SwitchStream.start(plan, sim, interval_s=scenario.interval_s,
                                                   offset_s=LEAD_S + k * scenario.interval_s / count)
         log.info("simulating %d switch(es) at %g samples/s, %gx real time", count, scenario.rate_hz, speed)
@@ -87,25 +88,6 @@ def _apply_commands(inbox: Inbox, intake: Intake, streams: dict[str, SwitchStrea
             streams[command.switch_id].command(command)
 
 
-def scenario_from_args(args: argparse.Namespace) -> Scenario:
-    """The --scenario file, or a scenario built from the simple options."""
-    simple = {"switches": args.switches, "switch_id": args.switch_id or None, "throws": args.throws,
-              "interval": args.interval, "fault": args.fault or None, "noise": args.noise, "rate": args.rate}
-    if args.scenario:
-        given = [f"--{name.replace('_', '-')}" for name, value in simple.items() if value is not None]
-        if given:
-            raise ScenarioError(f"--scenario excludes {', '.join(given)} (the file says it)")
-        return load_scenario(args.scenario)
-    if args.switch_id and args.switches is not None:
-        raise ScenarioError("give --switches N or --switch-id ID (repeatable), not both")
-    ids = args.switch_id or [f"sw{k + 1}" for k in range(args.switches or 1)]
-    if len(set(ids)) != len(ids):
-        raise ScenarioError(f"--switch-id repeats: {ids}")
-    plans = [SwitchPlan(id=i, throws=args.throws or 1_000_000, faults=dict(args.fault)) for i in ids]
-    return Scenario(interval_s=args.interval or 10.0, rate_hz=args.rate or 50.0, noise=args.noise or 0.0,
-                    seed=args.seed, switches=plans)
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_service_arguments(parser, status=True)
     parser.add_argument("--scenario", metavar="F.toml", help="schedule of switches, throws and fault changes")
@@ -117,6 +99,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="simulated seconds between a switch's throw starts (default 10)")
     parser.add_argument("--fault", type=fault_assignment, action="append", default=[], metavar="NAME=VALUE",
                         help="fault injected in every switch from the start (repeatable)")
+    add_own_arguments(parser)
     parser.add_argument("--noise", type=bounded(float, 0.0, 0.5), default=None, metavar="REL")
     parser.add_argument("--seed", type=bounded(int, 0, 2**32 - 1), default=0)
     parser.add_argument("--rate", type=bounded(float, 1.0, 1000.0, "samples/s"), default=None,

@@ -29,15 +29,15 @@ def key_estimates(diagnosis: Diagnosis) -> str:
     """The decided mode's estimates with their standard deviations, or the reason for unknown."""
     if diagnosis.decision == "unknown":
         return diagnosis.reason or ""
-    hypothesis = next((h for h in diagnosis.hypotheses if h.mode == diagnosis.decision), None)
-    if hypothesis is None:
+    estimate = diagnosis.estimate  # the decided fault over the throws that can see it
+    if estimate is None:
         return ""
     parts = []
-    for name, value in hypothesis.params.items():
-        std = hypothesis.std.get(name) if hypothesis.std else None
+    for name, value in estimate.params.items():
+        std = estimate.std.get(name)
         unit = FAULT_PARAMETERS[name].unit
         parts.append(f"{name} {value:.4g}" + (f" ± {std:.2g}" if std is not None else "") + f" {unit}")
-    return ", ".join(parts)
+    return ", ".join(parts) + (f" ({estimate.throws} throws)" if estimate.throws > 1 else "")
 
 
 def diagnosis_line(diagnosis: Diagnosis) -> str:

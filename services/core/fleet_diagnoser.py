@@ -1,53 +1,56 @@
 """The diagnoser's core, shared by `railswitch diagnose` (offline) and the live diagnoser.
 
-Turns cut throws into `Diagnosis` messages: one SwitchDiagnoser per switch, one
-estimator per representation, sample rate and throw length, built once per process.
+Turns cut throws into `Diagnosis` messages: one SwitchDiagnoser per switch (its baseline, latest
+verdicts and the decided fault's history) and one compiled estimator per process, which serves
+throws of any length and rate. A switch's baseline is handed to `on_baseline` whenever it grows,
+so the live diagnoser can keep it on disk and resume it after a restart.
 """
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
-from functools import lru_cache
 
 import numpy as np
 
-from railswitch.models.estimation import Measurement, ThrowEstimator
-from railswitch.models.isolation import OTHER_DIRECTION, ThrowVerdict, commissioning_gains
-from railswitch.models.plant import Plant
+from railswitch.models.estimation import MODEL_RATE_HZ, ThrowEstimator
 from railswitch.models.reduced import BearingPort, ReducedParams, ReducedSwitch, port_pairs
-from railswitch.models.reference import DIRECTIONS, Reference
+from railswitch.models.reference import Reference
 from railswitch.models.switch import SwitchSimulation
-from railswitch.models.switch_diagnosis import CLOSED_START_M, SwitchDiagnoser, ThrowInput
-from railswitch.schemas import RAIL_MODELS, Diagnosis, Hypothesis, Message
+from railswitch.models.switch_diagnosis import (
+    ErrorModel,
+    Outcome,
+    Population,
+    SwitchDiagnoser,
+    ThrowInput,
+    ThrowVerdict,
+    population,
+)
+from railswitch.models.health import Health
+from railswitch.schemas import (
+    RAIL_MODELS,
+    Commissioning,
+    Diagnosis,
+    FaultEstimate,
+    Hypothesis,
+    Message,
+    ParameterHealth,
+    SwitchHealth,
+)
 from railswitch.services.adapters import model_store
 from railswitch.services.adapters.compiled import MachineCode
 from railswitch.services.core.switch_messages import switch_messages
 from railswitch.services.core.throw_cutter import CutThrow, ThrowCutter
 
-DIAGNOSIS_SUBSTEPS = 2  # integration steps per sample: halves the model error of one step, at twice the cost
-
 
 @dataclass(frozen=True)
 class DiagnosedThrow:
-    """A throw, its Diagnosis message and (when it was fitted) the verdict with every estimate."""
+    """A throw, its Diagnosis and SwitchHealth messages and (when it was fitted) the verdict with every estimate."""
 
     throw: CutThrow
     diagnosis: Diagnosis
     verdict: ThrowVerdict | None
-
-
-def healthy_plant_throws(rate_hz: float, samples: int) -> list[Measurement]:
-    """A healthy, noise-free plant throw each way, as measurements (commissioning on the nominal plant)."""
-    plant = Plant()
-    switch = SwitchSimulation(plant, rate_hz=rate_hz)
-    out, rail = [], CLOSED_START_M["left_to_right"]
-    for _ in DIRECTIONS:
-        angle_at_start = plant.signals_at(switch.state)["angle_rad"]  # exact: the plant's own state
-        throw = switch.throw()
-        out.append(Measurement(throw.direction, throw.reference, throw.samples.signals[:samples], angle_at_start, rail))
-        rail = CLOSED_START_M[OTHER_DIRECTION[throw.direction]]
-    return out
+    health: SwitchHealth | None = None
 
 
 @dataclass
@@ -56,46 +59,109 @@ class Diagnoser:
 
     model: str = "poly"
     compiled: bool = True
-    switches: dict[str, SwitchDiagnoser] = field(default_factory=dict)
     port: BearingPort | None = None  # the bearing port per direction; None: the stored model's
+    on_baseline: Callable[[str, dict], None] | None = None  # (switch id, state) whenever a baseline changes
+    stored_baseline: Callable[[str], dict | None] | None = None  # a switch's state kept from an earlier run
+    switches: dict[str, SwitchDiagnoser] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.model not in RAIL_MODELS:
             raise ValueError(f"unknown model {self.model!r}; accepted: {', '.join(RAIL_MODELS)}")
-        self._estimator = lru_cache(maxsize=8)(self._build_estimator)
+        self._estimator: ThrowEstimator | None = None
+        self._prior: Population | None = None
+        self._errors = ErrorModel()
 
-    def _build_estimator(self, rate_hz: float, samples: int) -> tuple[ThrowEstimator, dict]:
-        """The estimator for throws of `samples` samples at `rate_hz`, commissioned on the healthy plant;
-        compiled to machine code once per machine (services/adapters/compiled.py)."""
-        stored = model_store.load(self.model)
-        params = ReducedParams(substeps=DIAGNOSIS_SUBSTEPS, bearing_port=port_pairs(self.port or stored.bearing_port))
-        reduced = ReducedSwitch(stored.representation, stored.weights, params, rate_hz=rate_hz)
-        estimator = ThrowEstimator(reduced, samples, MachineCode() if self.compiled else None)
-        return estimator, commissioning_gains(estimator, healthy_plant_throws(rate_hz, samples))
+    @property
+    def estimator(self) -> ThrowEstimator:
+        """The estimator, built (and compiled, once per machine: services/adapters/compiled.py) on first use."""
+        if self._estimator is None:
+            stored = model_store.load(self.model)
+            params = ReducedParams(bearing_port=port_pairs(self.port or stored.bearing_port))
+            reduced = ReducedSwitch(stored.representation, stored.weights, params, rate_hz=MODEL_RATE_HZ)
+            self._estimator = ThrowEstimator(reduced, MachineCode() if self.compiled else None)
+            self._prior = population(stored.healthy_gains, stored.model_weight)
+            self._errors = ErrorModel(**stored.error_model)
+        return self._estimator
 
-    def warm_up(self, rate_hz: float = 50.0, samples: int = 350) -> None:
-        """Build (and compile) the estimator for standard throws before the first one arrives."""
-        self._estimator(rate_hz, samples)
+    def warm_up(self) -> None:
+        """Build (and compile) the estimator before the first throw arrives."""
+        self.estimator
+
+    def switch(self, switch_id: str) -> SwitchDiagnoser:
+        """The diagnoser of one switch: resumed from its stored baseline, else commissioning afresh."""
+        if switch_id not in self.switches:
+            estimator = self.estimator
+            switch = SwitchDiagnoser(estimator, self._prior, self._errors)
+            stored = self.stored_baseline(switch_id) if self.stored_baseline is not None else None
+            if stored is not None:
+                switch.resume(stored)
+            self.switches[switch_id] = switch
+        return self.switches[switch_id]
+
+    def commission(self, switch_id: str) -> None:
+        """Restart a switch's commissioning (after maintenance)."""
+        switch = self.switch(switch_id)
+        switch.restart_commissioning()
+        if self.on_baseline is not None:
+            self.on_baseline(switch_id, switch.state())
 
     def diagnose(self, throw: CutThrow) -> DiagnosedThrow:
         """The Diagnosis of one throw; latency_ms is this call's wall time."""
         start = time.perf_counter()
-        switch = self.switches.setdefault(throw.switch_id, SwitchDiagnoser(self._estimator))
-        decision, reason, verdict = switch.diagnose(throw_input(throw))
-        hypotheses, joint = [], None
-        if verdict is not None:
-            for mode, estimate in verdict.estimates.items():
-                hypothesis = Hypothesis(mode=mode, params=estimate.params, std=estimate.std, mse=estimate.mse)
-                if mode == "joint":
-                    joint = hypothesis
-                else:
-                    hypotheses.append(hypothesis)
+        switch = self.switch(throw.switch_id)
+        commissioned = switch.baseline.complete
+        grown = sum(switch.baseline.count(d) for d in switch.baseline.healthy)
+        outcome = switch.diagnose(throw_input(throw))
+        if self.on_baseline is not None and (sum(switch.baseline.count(d) for d in switch.baseline.healthy) != grown
+                                             or switch.baseline.complete != commissioned):
+            self.on_baseline(throw.switch_id, switch.state())
         end_ns = throw.end.t_ns if throw.end is not None else throw.start.t_ns + int(round(_last_time(throw) * 1e9))
-        diagnosis = Diagnosis(switch_id=throw.switch_id, throw_index=throw.start.throw_index,
-                              direction=throw.start.direction, t_start_ns=throw.start.t_ns, t_end_ns=end_ns,
-                              model=self.model, decision=decision, reason=reason, hypotheses=hypotheses,
-                              joint=joint, latency_ms=(time.perf_counter() - start) * 1e3)
-        return DiagnosedThrow(throw, diagnosis, verdict)
+        diagnosis = diagnosis_message(self.model, throw, switch, outcome, (time.perf_counter() - start) * 1e3, end_ns)
+        health = None if outcome.health is None else health_message(self.model, throw, outcome.health, end_ns)
+        return DiagnosedThrow(throw, diagnosis, outcome.verdict, health)
+
+
+def health_message(model: str, throw: CutThrow, health: Health, end_ns: int) -> SwitchHealth:
+    """The SwitchHealth of a switch after a throw (parameters never seen yet are left out)."""
+    def finite(value):
+        return None if value is None or not np.isfinite(value) else float(value)
+
+    parameters = [ParameterHealth(name=h.name, level=h.level, level_std=finite(h.level_std), slope_per_100=h.slope_per_100,
+                                  slope_std_per_100=finite(h.slope_std_per_100), limit=h.limit,
+                                  throws_to_limit=finite(h.throws_to_limit), throws_to_limit_low=finite(h.throws_to_limit_low),
+                                  throws_to_limit_high=finite(h.throws_to_limit_high), state=h.state)
+                  for h in health.parameters.values() if np.isfinite(h.level_std)]
+    worst = health.parameters.get(health.worst) if health.worst else None
+    return SwitchHealth(switch_id=throw.switch_id, throw_index=throw.start.throw_index, t_ns=end_ns, model=model,
+                        state=health.state, worst=health.worst,
+                        throws_to_limit=finite(worst.throws_to_limit) if worst else None, parameters=parameters)
+
+
+def diagnosis_message(model: str, throw: CutThrow, switch: SwitchDiagnoser, outcome: Outcome, latency_ms: float,
+                      end_ns: int) -> Diagnosis:
+    """The Diagnosis of a throw's outcome (docs/contracts.md section 3)."""
+    hypotheses, joint = [], None
+    verdict = outcome.verdict
+    if verdict is not None:
+        for mode, reported in verdict.reported.items():
+            hypothesis = Hypothesis(mode=mode, params=reported.params, std=reported.std, mse=reported.mse,
+                                    unobservable=list(reported.unobservable), nuisance=reported.nuisance)
+            if mode == "joint":
+                joint = hypothesis
+            else:
+                hypotheses.append(hypothesis)
+    estimate = None
+    if outcome.estimate is not None:
+        e = outcome.estimate
+        estimate = FaultEstimate(mode=e.mode, params=e.params, std=e.std, throws=e.throws, since_throw=e.since_throw)
+    baseline = switch.baseline
+    commissioning = Commissioning(state="commissioned" if baseline.complete else "provisional",
+                                  throws={d: min(baseline.count(d), baseline.needed) for d in baseline.healthy},
+                                  needed=baseline.needed, outside_population=switch.outside_population())
+    return Diagnosis(switch_id=throw.switch_id, throw_index=throw.start.throw_index, direction=throw.start.direction,
+                     t_start_ns=throw.start.t_ns, t_end_ns=end_ns, model=model, decision=outcome.decision,
+                     reason=outcome.reason, hypotheses=hypotheses, joint=joint, estimate=estimate,
+                     commissioning=commissioning, latency_ms=latency_ms)
 
 
 def _last_time(throw: CutThrow) -> float:
@@ -106,7 +172,7 @@ def throw_input(throw: CutThrow) -> ThrowInput:
     """What the diagnosis needs from a cut throw."""
     start, end = throw.start, throw.end
     reference = Reference(np.asarray(start.reference_t_s, dtype=float), np.asarray(start.reference_velocity_rad_s, dtype=float))
-    return ThrowInput(start.direction, reference, throw.t_s, throw.signals,
+    return ThrowInput(start.throw_index, start.direction, reference, throw.t_s, throw.signals,
                       None if end is None else (end.t_ns - start.t_ns) * 1e-9, throw.missing_samples)
 
 

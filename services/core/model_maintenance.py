@@ -6,19 +6,17 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from railswitch.models.plant import Plant
 from railswitch.models.rail_models import REPRESENTATIONS
-from railswitch.models.reduced import NEUTRAL_PORT, STATES, ReducedSwitch
-from railswitch.models.reference import DIRECTIONS
-from railswitch.models.switch import SwitchSimulation
+from railswitch.models.reduced import STATES, ReducedSwitch
 from railswitch.models.training import TRAIN_SEEDS, train
 from railswitch.models.validation import quick_validation
 from railswitch.services.adapters import model_store
 from railswitch.services.adapters.compiled import MachineCode
+from railswitch.services.core.calibration import calibrate
 
 
 def train_and_save(name: str, *, seed: int = 0, iterations: int = 40, out_dir: str | None = None,
@@ -48,37 +46,16 @@ def train_and_save(name: str, *, seed: int = 0, iterations: int = 40, out_dir: s
     return model_store.save(name, document, out_dir=out_dir, replace_shipped=replace_shipped), seconds
 
 
-CALIBRATION_BEARINGS = (2000.0, 3500.0, 8000.0)  # N·s/m; the paper's 5000 stays out, to validate on
-
-
-def calibrate_bearing_port(name: str, plant: Plant | None = None) -> dict:
-    """Fit the bearing port of a model, per direction of motion: plant throws with known bearing
-    friction, estimated through the neutral port, give estimate = gain * friction + offset by least
-    squares; the diagnosis then uses that port, so its estimates come back in the plant's terms."""
-    from railswitch.services.core.fleet_diagnoser import Diagnoser, diagnose_simulation
-
-    plant = plant or Plant()
-    diagnoser = Diagnoser(name, port=NEUTRAL_PORT)
-    estimates: dict[str, list[float]] = {direction: [] for direction in DIRECTIONS}
-    for value in CALIBRATION_BEARINGS:
-        sim = SwitchSimulation(plant, faults={"bearing_friction": value})
-        for item in diagnose_simulation(diagnoser, f"calibration{int(value)}", sim, len(DIRECTIONS)):
-            if item.verdict is None:
-                raise RuntimeError(f"calibration throw at {value:g} N·s/m was not diagnosed: {item.diagnosis.reason}")
-            estimates[item.verdict.direction].append(item.verdict.estimates["missing_bearing"].params["bearing_friction"])
-    port: dict = {}
-    for direction, values in estimates.items():
-        gain, offset = np.polyfit(CALIBRATION_BEARINGS, values, 1)
-        port[direction] = {"gain": round(float(gain), 5), "offset_s_m": round(float(offset), 2)}
-    return {**port, "calibrated_on_n_s_m": list(CALIBRATION_BEARINGS), "estimates_through_neutral_port": estimates}
-
-
 def calibrate_and_save(name: str, *, replace_shipped: bool = False) -> tuple[Path, dict]:
-    """Calibrate a model's bearing port and store its document with the port (the user directory unless told)."""
-    port = calibrate_bearing_port(name)
+    """Calibrate a model against the plant over the population (services/core/calibration.py) and store
+    the port and the calibration with its parameters (the user directory unless told)."""
+    with Progress(TextColumn(f"[bold]{name}[/] {{task.description}}"), TimeElapsedColumn(), console=Console(stderr=True),
+                  disable=not sys.stderr.isatty()) as progress:
+        task = progress.add_task("calibrating")
+        found = calibrate(name, progress=lambda text: progress.update(task, description=text))
     document = model_store.read_document(name)
-    document["bearing_port"] = port
-    return model_store.save(name, document, replace_shipped=replace_shipped), port
+    document.update(found)
+    return model_store.save(name, document, replace_shipped=replace_shipped), found
 
 
 def describe_reduced() -> dict:
@@ -91,5 +68,7 @@ def describe_reduced() -> dict:
                      "equations": list(representation.equations),
                      "form": "acausal" if representation.acausal else "causal",
                      "parameters_file": str(stored.path), "shipped": stored.shipped, "trained": stored.training,
-                     "bearing_port": stored.bearing_port, "validation": stored.validation}
+                     "bearing_port": stored.bearing_port, "validation": stored.validation,
+                     "calibration": {"model_weight": stored.model_weight, "healthy_gains": stored.healthy_gains,
+                                     "error_model": stored.error_model}}
     return out

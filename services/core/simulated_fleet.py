@@ -13,7 +13,9 @@ import numpy as np
 from railswitch.models.reference import THROW_DURATION_S, Reference
 from railswitch.models.switch import RecordedThrow, ReplayedSwitch, SwitchSimulation
 from railswitch.schemas import FaultCommand, Message
-from railswitch.schemas.scenario import SwitchPlan
+from railswitch.models.plant import Plant
+from railswitch.models.population import draw_switch
+from railswitch.schemas.scenario import Scenario, SwitchPlan, is_plant_name
 from railswitch.services.core.switch_messages import motor_messages, throw_messages, truth_message
 from railswitch.services.core.throw_cutter import cut_throws
 
@@ -27,7 +29,7 @@ class SwitchStream:
     plan: SwitchPlan
     sim: SwitchSimulation | ReplayedSwitch
     idle_s: float
-    faults: dict[str, float]
+    settings: dict[str, float]  # faults and the switch's own parameters in force (scenario names)
     pending: deque[tuple[int, str, Message]] = field(default_factory=deque)
     throws_done: int = 0
     idle_next: bool = False
@@ -35,7 +37,7 @@ class SwitchStream:
 
     @classmethod
     def start(cls, plan: SwitchPlan, sim: SwitchSimulation | ReplayedSwitch, *, interval_s: float, offset_s: float) -> SwitchStream:
-        stream = cls(plan, sim, interval_s - THROW_DURATION_S, dict(plan.faults))
+        stream = cls(plan, sim, interval_s - THROW_DURATION_S, {**plan.faults, **sim.own})
         stream._push([truth_message(plan.id, sim, sim.time_ns(0))])
         stream._push(motor_messages(plan.id, sim, sim.initial_sample()))
         if offset_s > 0:
@@ -66,12 +68,14 @@ class SwitchStream:
             self._push(motor_messages(self.plan.id, self.sim, self.sim.idle(self.idle_s)))
         elif self.throws_done < self.plan.throws:
             try:
-                self.faults = self.plan.faults_before(self.throws_done, self.faults)
+                self.settings = self.plan.settings_before(self.throws_done, self.settings, self.sim.own)
             except ValueError as error:
-                log.warning("%s; keeping the faults in force", error)
-            self.sim.set_faults(self.faults)
+                log.warning("%s; keeping the settings in force", error)
+            faults, own = split_settings(self.settings)
+            self.sim.set_faults(faults)
+            self.sim.set_own(own)
             throw = self.sim.throw()
-            log.info("%s throw %d %s, faults %s", self.plan.id, throw.index, throw.direction, self.faults or "none")
+            log.info("%s throw %d %s, faults %s", self.plan.id, throw.index, throw.direction, faults or "none")
             self._push(throw_messages(self.plan.id, self.sim, throw))
             self.throws_done += 1
             self.idle_next = self.throws_done < self.plan.throws
@@ -80,10 +84,29 @@ class SwitchStream:
 
     def command(self, command: FaultCommand) -> None:
         """Apply a FaultCommand from the next throw on."""
-        faults = {} if command.reset else dict(self.faults)
+        faults, own = split_settings(self.settings)
+        faults = {} if command.reset else faults
         faults.update(command.params)
-        self.faults = faults
+        self.settings = {**faults, **own}
         log.info("%s: faults set to %s from throw %d on", self.plan.id, faults or "none", self.throws_done)
+
+
+def split_settings(settings: dict[str, float]) -> tuple[dict[str, float], dict[str, float]]:
+    """Scenario settings as (faults, the switch's own parameters)."""
+    return ({n: v for n, v in settings.items() if not is_plant_name(n)},
+            {n: v for n, v in settings.items() if is_plant_name(n)})
+
+
+def own_parameters(plan: SwitchPlan) -> dict[str, float]:
+    """A planned switch's own parameters: drawn from the population (`vary`), then those the plan sets."""
+    drawn = draw_switch(plan.vary).plant if plan.vary is not None else {}
+    return {**drawn, **plan.plant}
+
+
+def simulation(plant: Plant, plan: SwitchPlan, scenario: Scenario, k: int, start_ns: int = 0) -> SwitchSimulation:
+    """The plant simulation of the k-th switch of a scenario."""
+    return SwitchSimulation(plant, rate_hz=scenario.rate_hz, faults=plan.faults, noise_rel=scenario.noise,
+                            seed=scenario.seed + k, start_ns=start_ns, own=own_parameters(plan))
 
 
 def recorded_throws(messages: Iterable[Message]) -> list[RecordedThrow]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 from railswitch.models.switch import Samples, SwitchSimulation, Throw
-from railswitch.schemas import FaultTruth, Message, MotorSample, ThrowEvent, key_expr
+from railswitch.schemas import PLANT_PARAMETERS, FaultTruth, Message, MotorSample, ThrowEvent, key_expr
 
 
 def motor_messages(switch_id: str, sim: SwitchSimulation, samples: Samples) -> Iterator[tuple[str, Message]]:
@@ -28,8 +28,10 @@ def throw_event(switch_id: str, sim: SwitchSimulation, throw: Throw, phase: str)
 
 
 def truth_message(switch_id: str, sim: SwitchSimulation, t_ns: int) -> tuple[str, FaultTruth]:
-    """The faults currently injected in the simulated plant."""
-    return key_expr(switch_id, "truth"), FaultTruth(switch_id=switch_id, t_ns=t_ns, **sim.faults)
+    """The faults currently injected in the simulated plant, and its own parameters where not nominal."""
+    nominal = PLANT_PARAMETERS
+    own = {name: value for name, value in sim.own.items() if value != nominal[name].nominal}
+    return key_expr(switch_id, "truth"), FaultTruth(switch_id=switch_id, t_ns=t_ns, plant=own, **sim.faults)
 
 
 def throw_messages(switch_id: str, sim: SwitchSimulation, throw: Throw) -> Iterator[tuple[str, Message]]:
@@ -49,3 +51,25 @@ def switch_messages(switch_id: str, sim: SwitchSimulation, throws: int, progress
         yield from throw_messages(switch_id, sim, sim.throw())
         if progress is not None:
             progress()
+
+
+class SimulatedThrows:
+    """A simulated switch throw by throw, each cut as the diagnoser would cut it off the bus: change its
+    faults or its own parameters between throws (sim.set_faults, sim.set_own)."""
+
+    def __init__(self, switch_id: str, sim: SwitchSimulation):
+        from railswitch.services.core.throw_cutter import ThrowCutter
+
+        self.switch_id, self.sim = switch_id, sim
+        self.cutter = ThrowCutter()
+        self.cutter.feed(truth_message(switch_id, sim, 0)[1])
+        for _, message in motor_messages(switch_id, sim, sim.initial_sample()):
+            self.cutter.feed(message)
+
+    def next(self):
+        """The next throw, cut (a CutThrow)."""
+        for _, message in throw_messages(self.switch_id, self.sim, self.sim.throw()):
+            throw = self.cutter.feed(message)
+            if throw is not None:
+                return throw
+        raise RuntimeError("a simulated throw ended without its end event")

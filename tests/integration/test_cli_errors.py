@@ -21,3 +21,17 @@ def test_bad_service_options_give_one_line_and_exit_2(args, words):
     assert result.returncode == 2, result.stderr
     assert words in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1, result.stderr
+
+
+@pytest.mark.parametrize("args, words", [
+    (["simulate", "--out", "x.mcap", "--plant", "motor.supply_v=300"], "outside the accepted range 80 … 140 V"),
+    (["simulate", "--out", "x.mcap", "--plant", "motor.bogus=1"], "unknown plant parameter"),
+    (["simulate", "--out", "x.mcap", "--vary"], "expected one argument"),
+    (["simulator", "--plant", "rail.heel_flex_factor=1"], "outside the accepted range"),
+    (["commission", "not a switch!"], "must be 1 to 64 letters"),
+])
+def test_bad_switch_parameters_give_one_line_and_exit_2(args, words, tmp_path):
+    result = subprocess.run([sys.executable, "-m", "railswitch", *args], cwd=tmp_path, capture_output=True, text=True,
+                            timeout=60)
+    assert result.returncode == 2, result.stderr
+    assert words in result.stderr and len(result.stderr.strip().splitlines()) == 1

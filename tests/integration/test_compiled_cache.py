@@ -5,8 +5,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from railswitch.models.estimation import Measurement, ThrowEstimator
-from railswitch.models.faults import fault_vector
+from railswitch.models.estimation import MODEL_RATE_HZ, Measurement, ThrowEstimator
 from railswitch.models.reduced import ReducedSwitch
 from railswitch.models.reference import throw_reference
 from railswitch.models.signals import MotorSignals
@@ -53,27 +52,29 @@ def test_a_missing_cache_directory_is_not_created_and_the_function_still_evaluat
 @needs_compiler
 def test_estimator_built_from_the_cache_gives_the_uncompiled_residual_and_derivatives(tmp_path):
     stored = model_store.load("poly")
-    reduced = ReducedSwitch(stored.representation, stored.weights)
-    samples, reference = 50, throw_reference("left_to_right")
-    uncompiled = ThrowEstimator(reduced, samples)
-    blank = np.zeros(samples)
-    y = uncompiled.simulate(Measurement("left_to_right", reference, MotorSignals(blank, blank, blank), 0.0, 1.0),
+    reduced = ReducedSwitch(stored.representation, stored.weights, rate_hz=MODEL_RATE_HZ)
+    reference, t_s = throw_reference("left_to_right"), np.arange(1, 151) / 50.0  # 3 s: two compiled chunks
+    uncompiled = ThrowEstimator(reduced)
+    blank = np.zeros(len(t_s))
+    y = uncompiled.simulate(Measurement("left_to_right", reference, t_s, MotorSignals(blank, blank, blank), 0.0, 1.0),
                             {"left_bolt_offset": 0.05})
-    m = Measurement("left_to_right", reference, MotorSignals(y["current_a"], y["angle_rad"], y["velocity_rad_s"]), 0.0, 1.0)
-    theta = fault_vector({"left_bolt_offset": 0.02, "bearing_friction": 1e3})
+    m = Measurement("left_to_right", reference, t_s, MotorSignals(y["current_a"], y["angle_rad"], y["velocity_rad_s"]),
+                    0.0, 1.0)
+    theta = reduced.vector({"left_bolt_offset": 0.02, "bearing_friction": 1e3})
+    free = [[0], [0, 2, 5, 6, 7], [0, 1, 2, 3, 4, 5, 6], list(range(9))]
 
     def evaluations(estimator: ThrowEstimator) -> list:
-        """Every compiled Function once: residual, linearisations along 1, 2 and 5 parameters, grid costs."""
-        data = estimator._data(m)
-        grid = np.tile(theta[:, None], estimator._grid.function.size2_in(0))
-        out = [estimator._residuals(theta, data), *estimator._linearise(theta, data, [0]),
-               *estimator._linearise(theta, data, [0, 2]), *estimator._linearise(theta, data, [0, 1, 2, 3, 4]),
-               estimator._grid(grid, *data)[0]]
+        """Every compiled Function: the chunk (residual), the grid chunk (costs), each sensitivity chunk."""
+        throw = estimator.prepare(m)
+        out = [estimator.residuals(theta, throw), estimator.costs(np.tile(theta[:, None], 3), throw)]
+        for index in free:
+            out += estimator.linearise(theta, throw, index)
         return [np.asarray(value) for value in out]
 
     expected = evaluations(uncompiled)
     for build in ("compiles", "loads"):
-        cached = ThrowEstimator(reduced, samples, MachineCode(tmp_path))
-        assert cached._residual.function.class_name() == "External" and len(list(tmp_path.glob("*.so"))) == 5, build
+        cached = ThrowEstimator(reduced, MachineCode(tmp_path))
+        functions = 2 + len(cached.directions)
+        assert cached._chunk.function.class_name() == "External" and len(list(tmp_path.glob("*.so"))) == functions, build
         for got, value in zip(evaluations(cached), expected):
             np.testing.assert_allclose(got, value, rtol=1e-10, atol=1e-12 * np.max(np.abs(value)))

@@ -9,6 +9,7 @@ from hypothesis import strategies as st
 from pydantic import BaseModel, ValidationError
 
 from railswitch.schemas import (
+    decode_counted,
     CHANNEL_MODELS,
     DECISIONS,
     FAULT_PARAMETERS,
@@ -159,7 +160,7 @@ def test_check_fault_value_parses_command_line_text() -> None:
         check_fault_value("foo", 1.0)
 
 
-def test_fault_table_matches_design_section_3() -> None:
+def test_fault_table_matches_the_contract() -> None:
     table = {p.name: (p.mode, p.unit, p.nominal, p.low, p.high) for p in FAULT_PARAMETERS.values()}
     assert table == {
         "left_bolt_offset": ("left_bolt", "m", 0, -0.02, 0.20),
@@ -167,6 +168,7 @@ def test_fault_table_matches_design_section_3() -> None:
         "bearing_friction": ("missing_bearing", "N·s/m", 0, 0, 10_000),
         "obstacle_friction": ("obstacle", "N·s/m", 0, 0, 300_000),
         "obstacle_position": ("obstacle", "m", 1.10, 1.02, 1.18),
+        "drive_friction_nm": ("drive_friction", "N·m", 0, 0, 0.30),
     }
     assert MODE_PARAMETERS["obstacle"] == ("obstacle_friction", "obstacle_position")
     assert DECISIONS == ("nominal", *MODE_PARAMETERS, "unknown")
@@ -221,11 +223,21 @@ def test_bad_reference_profile_rejected(
         ThrowEvent.model_validate(THROW.model_dump() | fields)
 
 
-def test_unknown_fields_rejected_and_messages_frozen() -> None:
-    with pytest.raises(ValidationError, match="Extra inputs are not permitted"):
-        MotorSample.model_validate(MOTOR.model_dump() | {"torque_nm": 1.0})
+def test_unknown_fields_are_ignored_and_named_and_messages_frozen() -> None:
+    """A newer publisher's extra field neither silences an older subscriber nor passes through unseen."""
+    payload = json.dumps(MOTOR.model_dump() | {"unit_serial": "PM-4711", "torque_nm": 1.0}).encode()
+    message, extras = decode_counted(MotorSample, payload)
+    assert message == MOTOR and extras == ["torque_nm", "unit_serial"]
+    assert "unit_serial" not in encode(message).decode()  # what we pass on is what we understood
     with pytest.raises(ValidationError, match="frozen"):
         MOTOR.seq = 8  # type: ignore[misc]
+
+
+def test_a_current_only_sample_and_a_contract_version_are_accepted() -> None:
+    sample = decode(MotorSample, b'{"switch_id": "sw1", "seq": 3, "t_ns": 5, "current_a": 1.5}')
+    assert sample.angle_rad is None and sample.velocity_rad_s is None and sample.contract == 1
+    with pytest.raises(MessageError, match="contract"):
+        decode(MotorSample, b'{"switch_id": "sw1", "seq": 3, "t_ns": 5, "current_a": 1.5, "contract": 0}')
 
 
 @pytest.mark.parametrize("model_cls", CHANNEL_MODELS.values(), ids=lambda c: c.__name__)

@@ -61,8 +61,8 @@ def test_rail_energy_never_increases_with_the_motor_unpowered(rail_m, velocity_m
     state[plant.nodes:2 * plant.nodes] = velocity_m_s * plant.beam.shape
     faults = {"bearing_friction": 2000.0, "obstacle_friction": 5e4, "obstacle_position": rail_m - 0.003}
     trajectory = plant.run(state, 1.5, 400.0, faults)
-    energy = np.array([float(plant.energy(x, fault_vector(faults))[0]) for x in trajectory.states.T])
-    initial = float(plant.energy(state, fault_vector(faults))[0])
+    energy = np.array([float(plant.energy(x, fault_vector(faults), plant.variables())[0]) for x in trajectory.states.T])
+    initial = float(plant.energy(state, fault_vector(faults), plant.variables())[0])
     energy = np.concatenate([[initial], energy])
     kinetic = 0.5 * np.sum(plant.beam.masses_kg * state[plant.nodes:2 * plant.nodes] ** 2)
     assert kinetic > 1.0  # the test starts with something to dissipate

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from railswitch.services.adapters import model_store
-from railswitch.models.faults import FAULT_ORDER, fault_vector
+from railswitch.models.reduced import PARAMETERS
 from railswitch.models.rail_models import REPRESENTATIONS
 from railswitch.models.reduced import OUTPUTS, ReducedSwitch
 from railswitch.models.switch import SwitchSimulation
@@ -60,11 +60,11 @@ def test_shipped_weights_reproduce_the_plants_nominal_throws(name, nominal_plant
 def output_sensitivities(reduced, s0, reference, faults):
     """d(current, velocity)/d(fault parameter) over a throw, by CasADi's AD."""
     n = 350
-    theta = ca.MX.sym("theta", len(FAULT_ORDER))
+    theta = ca.MX.sym("theta", len(PARAMETERS))
     y, _ = reduced.rollout(n)(s0, reduced.reference_columns(reference, n), theta, reduced.weights)
     signals = ca.vertcat(y[OUTPUTS.index("current_a"), :].T, y[OUTPUTS.index("velocity_rad_s"), :].T)
     jac = ca.Function("fault_jacobian", [theta], [ca.jacobian(signals, theta)])
-    return dict(zip(FAULT_ORDER, np.asarray(jac(fault_vector(faults))).T))
+    return dict(zip(PARAMETERS, np.asarray(jac(reduced.vector(faults))).T))
 
 
 @pytest.mark.parametrize("name", MODELS)
@@ -96,17 +96,17 @@ def test_sensitivity_rollout_gives_the_derivatives_of_the_rollout(name):
     reduced = ReducedSwitch(representation, weights)
     n, s0 = 120, reduced.initial_state(1.0, 0.0)
     refs = reduced.reference_columns(throw_reference("left_to_right"), n)
-    theta = fault_vector({"left_bolt_offset": 0.03, "bearing_friction": 2000.0, "obstacle_friction": 5e4,
+    theta = reduced.vector({"left_bolt_offset": 0.03, "bearing_friction": 2000.0, "obstacle_friction": 5e4,
                           "obstacle_position": 1.05})
-    symbol = ca.MX.sym("theta", len(FAULT_ORDER))
+    symbol = ca.MX.sym("theta", len(PARAMETERS))
     y, _ = reduced.rollout(n)(s0, refs, symbol, reduced.weights)
     expected = np.asarray(ca.Function("j", [symbol], [ca.jacobian(ca.vec(y), symbol)])(theta))
-    seeds = np.eye(len(FAULT_ORDER))[:, [0, 2, 4]]  # three of the five parameters, in any order
+    seeds = np.eye(len(PARAMETERS))[:, [0, 2, 4, 5, 9]]  # five of the parameters, faults and own, in any order
     y_sens, y_dot = reduced.sensitivity_rollout(n, seeds.shape[1])(s0, refs, theta, seeds, reduced.weights)
     nominal, _ = reduced.rollout(n)(s0, refs, theta, reduced.weights)
     np.testing.assert_allclose(np.asarray(y_sens), np.asarray(nominal), rtol=1e-12)
     y_dot = np.asarray(y_dot)
-    for j, parameter in enumerate([0, 2, 4]):
+    for j, parameter in enumerate([0, 2, 4, 5, 9]):
         block = y_dot[j * len(OUTPUTS):(j + 1) * len(OUTPUTS), :]
         column = expected[:, parameter]
         np.testing.assert_allclose(block.ravel(order="F"), column, rtol=1e-8, atol=1e-9 * np.max(np.abs(column)))
@@ -147,8 +147,8 @@ def test_hook_levels_stay_between_0_and_1_when_a_bolt_arrives_within_a_step():
             rod = p.drive.linkage_ratio * p.rail.left_stock_m + free_play + bolt - before_m
             s = [motor_angle_at_rod(p.drive, rod), speed, 0.0, 0.0, p.rail.left_stock_m, 0.0, 1.0, 0.0]
         refs = np.array([s[1], s[1]])
-        s_next, _ = reduced[rate].step(np.array(s), refs, fault_vector({"left_bolt_offset": bolt,
-                                                                        "right_bolt_offset": bolt}), weights)
+        s_next, _ = reduced[rate].step(np.array(s), refs, reduced[rate].vector({"left_bolt_offset": bolt,
+                                                                                "right_bolt_offset": bolt}), weights)
         levels = np.asarray(s_next).ravel()[6:]
         assert np.all((levels >= 0.0) & (levels <= 1.0)), levels
 

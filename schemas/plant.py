@@ -1,0 +1,62 @@
+"""Per-switch build and environment parameters of the simulated plant: the names a user may set
+(`--plant NAME=VALUE`, scenario files, the truth channel), their units, nominal values and ranges.
+
+Names are `group.field` of the plant's parameter groups (motor, rail). The nominal values are the
+plant's own defaults; a test holds the two to account.
+"""
+import math
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class PlantParameter:
+    name: str
+    unit: str
+    nominal: float
+    low: float
+    high: float
+    meaning: str
+
+
+PLANT_PARAMETERS: dict[str, PlantParameter] = {
+    p.name: p
+    for p in (
+        PlantParameter("motor.resistance_ohm", "Ω", 9.5, 6.0, 14.0,
+                       "winding resistance at the winding's temperature (copper: +0.393 % per kelvin)"),
+        PlantParameter("motor.supply_v", "V", 110.0, 80.0, 140.0, "supply voltage at the point machine"),
+        PlantParameter("motor.coulomb_friction_nm", "N·m", 0.12, 0.04, 0.40,
+                       "Coulomb friction of motor and gearbox, at the motor shaft"),
+        PlantParameter("motor.torque_constant_nm_a", "N·m/A", 0.2, 0.16, 0.24,
+                       "torque constant (and back-EMF constant, in SI units the same)"),
+        PlantParameter("rail.chair_friction_coefficient", "1", 0.02, 0.002, 0.15,
+                       "slide-chair Coulomb friction coefficient: lubrication, dryness, ice"),
+        PlantParameter("rail.chair_viscous_n_s_m", "N·s/m", 300.0, 100.0, 900.0, "rolling losses of each slide chair"),
+        PlantParameter("rail.heel_flex_factor", "1", 0.08, 0.04, 0.16,
+                       "bending stiffness of the machined heel relative to the full rail section"),
+    )
+}
+
+
+def _fmt(x: float) -> str:
+    short = f"{x:g}"
+    return short if float(short) == x else repr(x)
+
+
+def check_plant_value(name: str, value: float | str) -> float:
+    """Return value as a float if name is a plant parameter and the value finite and in range; else ValueError."""
+    if name not in PLANT_PARAMETERS:
+        raise ValueError(f"unknown plant parameter {name!r}; accepted: {', '.join(PLANT_PARAMETERS)}")
+    p = PLANT_PARAMETERS[name]
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}={value!r} is not a number") from None
+    if not math.isfinite(x):
+        raise ValueError(f"{name}={value} is not a finite number")
+    if not p.low <= x <= p.high:
+        raise ValueError(f"{name}={_fmt(x)} is outside the accepted range {_fmt(p.low)} … {_fmt(p.high)} {p.unit}")
+    return x
+
+
+def check_plant_values(values: dict[str, float]) -> dict[str, float]:
+    return {name: check_plant_value(name, value) for name, value in values.items()}

@@ -1,0 +1,40 @@
+"""`railswitch commission SW`: restart a switch's commissioning after maintenance.
+
+Publishes a CommissionCommand on railswitch/<SW>/commission; the diagnoser serving the switch forgets
+its baseline and learns it again from the next healthy throws (a switch it does not know is refused
+and counted in its status).
+"""
+from __future__ import annotations
+
+import argparse
+import threading
+import time
+
+from railswitch.schemas import CommissionCommand, key_expr
+from railswitch.services.adapters.zenoh_bus import BusOptions, Publishers, open_session
+from railswitch.services.commands.options import add_service_arguments, run_service, switch_id
+
+SETTLE_S = 0.5  # lets the publication leave before the session closes
+
+
+def send_commission(options: BusOptions, switches: list[str], reason: str | None, stop: threading.Event) -> int:
+    session = open_session(options, stop=stop, wait_s=30.0)
+    try:
+        publishers = Publishers(session)
+        time.sleep(SETTLE_S)  # subscribers' routes are in place
+        for switch in switches:
+            publishers.put(key_expr(switch, "commission"), CommissionCommand(switch_id=switch, reason=reason))
+        time.sleep(SETTLE_S)
+        return publishers.published
+    finally:
+        session.close()
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_service_arguments(parser)
+    parser.add_argument("switch_id", type=switch_id, nargs="+", metavar="SW", help="the switch (or switches)")
+    parser.add_argument("--reason", default=None, help="why, for the diagnoser's log (e.g. 'bolts reset')")
+
+
+def run(args: argparse.Namespace) -> int:
+    return run_service(lambda options, stop: send_commission(options, args.switch_id, args.reason, stop), args)
