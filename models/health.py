@@ -96,6 +96,13 @@ class TrendFilter:
         self.p = self.p - np.outer(gain, self.p[0, :])
         self.updates += 1
 
+    def to_dict(self) -> dict:
+        return {"x": self.x.tolist(), "p": self.p.tolist(), "updates": self.updates, "surprised": self.surprised}
+
+    def load(self, data: dict) -> None:
+        self.x, self.p = np.array(data["x"], dtype=float), np.array(data["p"], dtype=float)
+        self.updates, self.surprised = int(data["updates"]), int(data["surprised"])
+
     def _restart(self, value: float, variance: float, keep_slope_variance: bool = False) -> None:
         slope_variance = self.p[1, 1] if keep_slope_variance and self.p[1, 1] < 1e11 else self.q[1, 1] * 1e4
         self.x = np.array([value, 0.0])
@@ -145,6 +152,18 @@ class HealthTracker:
             self.filters[name] = TrendFilter(q=q)
         self.states = dict.fromkeys(TRACKED, "ok")
         self._calls = {name: ("ok", 0) for name in TRACKED}
+
+    def to_dict(self) -> dict:
+        """What a restarted diagnoser needs to go on tracking: every filter and the alarm states."""
+        return {"filters": {name: f.to_dict() for name, f in self.filters.items()}, "states": dict(self.states),
+                "calls": {name: list(call) for name, call in self._calls.items()}}
+
+    def load(self, data: dict) -> None:
+        for name, filter_state in data["filters"].items():
+            if name in self.filters:
+                self.filters[name].load(filter_state)
+        self.states.update({name: s for name, s in data["states"].items() if name in self.states})
+        self._calls.update({name: (c[0], int(c[1])) for name, c in data["calls"].items() if name in self._calls})
 
     def update(self, throw_index: int, estimates: dict[str, tuple[float, float]]) -> Health:
         """`estimates`: parameter -> (value, fit std) from the hypotheses this throw could see."""

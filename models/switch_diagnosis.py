@@ -526,8 +526,11 @@ class SwitchDiagnoser:
 
     # -- persistence ------------------------------------------------------------------------------
     def state(self) -> dict:
-        """What a restarted diagnoser needs to resume this switch: its baseline."""
-        return {"baseline": self.baseline.to_dict()}
+        """What a restarted diagnoser (or the one that takes the switch over) needs to resume it: its
+        baseline and its health over the throws so far."""
+        return {"baseline": self.baseline.to_dict(), "health": self.health.to_dict()}
 
     def resume(self, state: dict) -> None:
         self.baseline = Baseline.from_dict(state["baseline"])
+        if "health" in state:
+            self.health.load(state["health"])

@@ -29,7 +29,7 @@ def run_diagnoser(options: BusOptions, *, model: str, shard: tuple[int, int], st
         publishers = Publishers(session)
         inbox = Inbox(session, ["railswitch/*/*"])  # one subscription keeps samples and events in order
         baselines = BaselineStore(model, state)
-        diagnoser = Diagnoser(model, on_baseline=baselines.save, stored_baseline=baselines.load)
+        diagnoser = Diagnoser(model, on_state=baselines.save, stored_state=baselines.load)
         started = time.monotonic()
         diagnoser.warm_up()
         log.info("model %s ready in %.1f s; shard %d/%d; baselines in %s", model, time.monotonic() - started, *shard,

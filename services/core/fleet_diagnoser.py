@@ -2,8 +2,8 @@
 
 Turns cut throws into `Diagnosis` messages: one SwitchDiagnoser per switch (its baseline, latest
 verdicts and the decided fault's history) and one compiled estimator per process, which serves
-throws of any length and rate. A switch's baseline is handed to `on_baseline` whenever it grows,
-so the live diagnoser can keep it on disk and resume it after a restart.
+throws of any length and rate. A switch's state (baseline and health) is handed to `on_state` after
+every throw, so the live diagnoser can keep it on disk (or on the bus) and resume it after a restart.
 """
 from __future__ import annotations
 
@@ -60,8 +60,8 @@ class Diagnoser:
     model: str = "poly"
     compiled: bool = True
     port: BearingPort | None = None  # the bearing port per direction; None: the stored model's
-    on_baseline: Callable[[str, dict], None] | None = None  # (switch id, state) whenever a baseline changes
-    stored_baseline: Callable[[str], dict | None] | None = None  # a switch's state kept from an earlier run
+    on_state: Callable[[str, dict], None] | None = None  # (switch id, state) after every throw and commissioning
+    stored_state: Callable[[str], dict | None] | None = None  # a switch's state kept from an earlier run
     switches: dict[str, SwitchDiagnoser] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -92,7 +92,7 @@ class Diagnoser:
         if switch_id not in self.switches:
             estimator = self.estimator
             switch = SwitchDiagnoser(estimator, self._prior, self._errors)
-            stored = self.stored_baseline(switch_id) if self.stored_baseline is not None else None
+            stored = self.stored_state(switch_id) if self.stored_state is not None else None
             if stored is not None:
                 switch.resume(stored)
             self.switches[switch_id] = switch
@@ -102,19 +102,16 @@ class Diagnoser:
         """Restart a switch's commissioning (after maintenance)."""
         switch = self.switch(switch_id)
         switch.restart_commissioning()
-        if self.on_baseline is not None:
-            self.on_baseline(switch_id, switch.state())
+        if self.on_state is not None:
+            self.on_state(switch_id, switch.state())
 
     def diagnose(self, throw: CutThrow) -> DiagnosedThrow:
         """The Diagnosis of one throw; latency_ms is this call's wall time."""
         start = time.perf_counter()
         switch = self.switch(throw.switch_id)
-        commissioned = switch.baseline.complete
-        grown = sum(switch.baseline.count(d) for d in switch.baseline.healthy)
         outcome = switch.diagnose(throw_input(throw))
-        if self.on_baseline is not None and (sum(switch.baseline.count(d) for d in switch.baseline.healthy) != grown
-                                             or switch.baseline.complete != commissioned):
-            self.on_baseline(throw.switch_id, switch.state())
+        if self.on_state is not None:
+            self.on_state(throw.switch_id, switch.state())
         end_ns = throw.end.t_ns if throw.end is not None else throw.start.t_ns + int(round(_last_time(throw) * 1e9))
         diagnosis = diagnosis_message(self.model, throw, switch, outcome, (time.perf_counter() - start) * 1e3, end_ns)
         health = None if outcome.health is None else health_message(self.model, throw, outcome.health, end_ns)

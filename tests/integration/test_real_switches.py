@@ -101,7 +101,7 @@ def test_a_restarted_diagnoser_resumes_the_switch_baseline_and_a_commission_comm
 
     def diagnoser_with_store():
         store = BaselineStore("poly", tmp_path)
-        return Diagnoser("poly", on_baseline=store.save, stored_baseline=store.load), store
+        return Diagnoser("poly", on_state=store.save, stored_state=store.load), store
 
     first, _ = diagnoser_with_store()
     run_switch(first, plant, "kept", own={}, throws=COMMISSIONING)
