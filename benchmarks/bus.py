@@ -11,9 +11,25 @@
    replayed as fast as possible into one diagnoser and then into two shards; the
    throws per second each clears once the replay has finished (the backlog) give
    `shard_speedup`.
+
+`--records` measures instead a fleet sending each throw as one record (`simulator --as-records`)
+into two elastic diagnosers (no recorder), every switch throwing once per 15 simulated minutes (a
+real switch throws about 100 times a day):
+
+1. Capacity: one throw of each of `--burst` switches at once; the throws per second the two
+   diagnosers clear, and per CPU second they spend (decoding everything, holding others' throws,
+   diagnosing their own): `switches_per_core`, the fleet one core serves at 100 throws a day.
+2. Paced: `--fleet` switches sped up to `--load` times the measured capacity, for `--paced-s`
+   seconds: `lost` (throws without a diagnosis) and the latency from a record's arrival to its
+   diagnosis's. With `--elastic` a third diagnoser joins mid-run and one of the first two is then
+   killed with -9; `settle_s` is how long after each event every live diagnoser reports the new
+   live set (status every 0.2 s), and the throws it held in flight must be diagnosed by the others.
 """
 from __future__ import annotations
 
+import math
+import os
+import signal
 import statistics
 import tempfile
 import threading
@@ -21,12 +37,19 @@ import time
 from pathlib import Path
 
 import numpy as np
+import zenoh
 
 from benchmarks.common import emit, parser
-from railswitch.schemas import Diagnosis, MotorSample, ThrowEvent, decode
+from railswitch.schemas import Diagnosis, MotorSample, ServiceStatus, ThrowEvent, ThrowRecord, decode
 from railswitch.services.adapters.zenoh_bus import BusOptions, open_session
 from railswitch.services.adapters.recordings import RecordingWriter, load_recording
-from railswitch.services.adapters.processes import ServiceProcesses, free_loopback_endpoint, wait_for, wait_ready
+from railswitch.services.adapters.processes import (
+    ServiceProcesses,
+    free_loopback_endpoint,
+    instance_of,
+    wait_for,
+    wait_ready,
+)
 from railswitch.services.commands.simulate import simulate_to_mcap
 
 RATE_HZ = 50.0
@@ -130,7 +153,18 @@ def main() -> None:
     p.add_argument("--switches", type=int, default=100)
     p.add_argument("--throws", type=int, default=3, help="throws per switch in the fleet run")
     p.add_argument("--backlog-switches", type=int, default=100, help="switches whose throws form the backlog")
+    p.add_argument("--records", action="store_true", help="throws as records into elastic diagnosers (see above)")
+    p.add_argument("--elastic", action="store_true", help="with --records: a diagnoser joins, then one is killed")
+    p.add_argument("--burst", type=int, default=400, help="with --records: throws of the capacity run")
+    p.add_argument("--fleet", type=int, default=2000, help="with --records: switches of the paced run")
+    p.add_argument("--load", type=float, default=0.4, help="with --records: paced load, fraction of capacity")
+    p.add_argument("--paced-s", type=float, default=None, help="with --records: paced run (default 40 s, 60 elastic)")
     args = p.parse_args()
+    if args.elastic and not args.records:
+        p.error("--elastic needs --records")
+    if args.records:
+        emit(records_benchmark(args), args.json)
+        return
     endpoint = free_loopback_endpoint()
     with tempfile.TemporaryDirectory(prefix="railswitch-bus-") as scratch, ServiceProcesses(Path(scratch)) as processes:
         work = Path(scratch)
@@ -182,6 +216,186 @@ def main() -> None:
         "clear_rate_throws_per_s": {"one_shard": round(one, 2), "two_shards": round(two, 2)},
     }
     emit(result, args.json)
+
+
+# -- throws as records into elastic diagnosers ------------------------------------------------------
+RECORD_INTERVAL_S = 900.0  # a real switch throws about 100 times a day
+THROWS_PER_DAY = 100
+STATUS_S = "0.2"
+
+
+class RecordObserver:
+    """Arrival times (monotonic s) of records and diagnoses per throw, every diagnoser status, and the live
+    diagnosers as liveliness shows them."""
+
+    def __init__(self, session):
+        self.lock = threading.Lock()
+        self.records: dict[tuple[str, int], float] = {}
+        self.diagnoses: dict[tuple[str, int], float] = {}
+        self.duplicates = 0
+        self.statuses: list[tuple[float, ServiceStatus]] = []
+        self.joined: dict[str, float] = {}
+        self._subscribers = [
+            session.declare_subscriber("railswitch/*/record", self._record),
+            session.declare_subscriber("railswitch/*/diagnosis", self._diagnosis),
+            session.declare_subscriber("railswitch/service/diagnoser/*/status", self._status),
+            session.liveliness().declare_subscriber("railswitch/service/diagnoser/*", self._live, history=True)]
+
+    def _record(self, sample) -> None:
+        now = time.monotonic()
+        record = decode(ThrowRecord, sample.payload.to_bytes())
+        with self.lock:
+            self.records[record.switch_id, record.throw_index] = now
+
+    def _diagnosis(self, sample) -> None:
+        now = time.monotonic()
+        diagnosis = decode(Diagnosis, sample.payload.to_bytes())
+        with self.lock:
+            key = diagnosis.switch_id, diagnosis.throw_index
+            self.duplicates += key in self.diagnoses
+            self.diagnoses.setdefault(key, now)
+
+    def _status(self, sample) -> None:
+        now = time.monotonic()
+        with self.lock:
+            self.statuses.append((now, decode(ServiceStatus, sample.payload.to_bytes())))
+
+    def _live(self, sample) -> None:
+        if sample.kind == zenoh.SampleKind.PUT:
+            self.joined.setdefault(str(sample.key_expr).rsplit("/", 1)[-1], time.monotonic())
+
+    def reset(self) -> None:
+        with self.lock:
+            self.records.clear()
+            self.diagnoses.clear()
+            self.duplicates = 0
+
+    def undiagnosed(self) -> int:
+        with self.lock:
+            return len(set(self.records) - set(self.diagnoses))
+
+    def latencies_ms(self) -> list[float]:
+        with self.lock:
+            return [1e3 * (t - self.records[k]) for k, t in self.diagnoses.items() if k in self.records]
+
+    def latest_counters(self, instance: str) -> dict[str, int]:
+        with self.lock:
+            return next((s.counters for _, s in reversed(self.statuses) if s.instance == instance), {})
+
+    def settled_after(self, event_s: float, live: list[str]) -> float:
+        """Seconds from event_s until every live diagnoser had reported the live set's size (nan if never)."""
+        with self.lock:
+            firsts = [next((t for t, s in self.statuses if t > event_s and s.instance == instance
+                            and s.counters.get("members") == len(live)), math.nan) for instance in live]
+        return max(firsts) - event_s
+
+
+def cpu_s(pid: int) -> float:
+    """User and system CPU seconds a process has used (/proc/<pid>/stat)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def record_fleet(processes: ServiceProcesses, endpoint: str, library: Path, name: str, switches: int, speed: float,
+                 throws: int):
+    """A simulator sending records of switches <name>1 … <name>N: each run its own switches, since a switch's
+    records must go forward in time and a sped-up run's times run ahead of the clock."""
+    scenario = processes.log_dir / f"{name}.toml"
+    scenario.write_text(f"interval_s = {RECORD_INTERVAL_S}\n" + "".join(
+        f'[[switches]]\nid = "{name}{k + 1}"\nthrows = {throws}\n' for k in range(switches)))
+    return processes.start("simulator", "--connect", endpoint, "--as-records", "--scenario", str(scenario),
+                           "--speed", f"{speed:g}", "--throws-from", str(library), "--status-interval", "5")
+
+
+def capacity_run(processes, observer: RecordObserver, endpoint: str, library: Path, diagnosers, burst: int) -> dict:
+    """One throw of each of `burst` switches at once: how fast, and at what CPU cost, the diagnosers clear them."""
+    observer.reset()
+    cpu0 = sum(cpu_s(d.pid) for d in diagnosers)
+    start = time.monotonic()
+    fleet = record_fleet(processes, endpoint, library, "burst", burst, 10_000.0, 1)  # all within 0.1 s
+    fleet.wait(300)
+    wait_for(lambda: len(observer.records) >= burst and observer.undiagnosed() == 0, 900, "the burst's diagnoses")
+    cpu = sum(cpu_s(d.pid) for d in diagnosers) - cpu0
+    cleared_s = max(observer.diagnoses.values()) - start
+    per_cpu_s = burst / cpu
+    return {"throws": burst, "throws_per_s_cleared": round(burst / cleared_s, 2), "diagnoser_cpu_s": round(cpu, 1),
+            "throws_per_cpu_s": round(per_cpu_s, 2),
+            "switches_per_core": int(per_cpu_s * 86_400 / THROWS_PER_DAY)}
+
+
+def paced_run(processes, session, observer: RecordObserver, endpoint: str, library: Path, work: Path, diagnosers,
+              fleet_size: int, rate: float, paced_s: float, elastic: bool) -> dict:
+    """The fleet at `rate` throws per second for paced_s; with elastic, a third diagnoser joins at a quarter of it
+    and one of the first two is killed with -9 once the third has settled."""
+    observer.reset()
+    speed = rate * RECORD_INTERVAL_S / fleet_size
+    fleet = record_fleet(processes, endpoint, library, "sw", fleet_size, speed, 1_000)
+    start = time.monotonic()
+    out: dict = {"fleet": fleet_size, "speed": round(speed, 2), "offered_throws_per_s": round(rate, 2)}
+    if elastic:
+        time.sleep(paced_s / 4)
+        third = processes.start("diagnoser", "--connect", endpoint, "--state", str(work / "state-3"),
+                                "--status-interval", STATUS_S)
+        wait_ready(session, processes, diagnoser=3)
+        wait_for(lambda: instance_of(third) in observer.joined, 30, "the third diagnoser's token")
+        joined_s = observer.joined[instance_of(third)]
+        live = [instance_of(d) for d in (*diagnosers, third)]
+        wait_for(lambda: not math.isnan(observer.settled_after(joined_s, live)), 30, "the join to settle")
+        time.sleep(3.0)
+        victim = diagnosers[0]
+        killed_s = time.monotonic()
+        processes.stop(victim, signal.SIGKILL)
+        survivors = live[1:]
+        wait_for(lambda: not math.isnan(observer.settled_after(killed_s, survivors)), 30, "the kill to settle")
+        out.update(join_settle_s=round(observer.settled_after(joined_s, live), 2),
+                   kill_settle_s=round(observer.settled_after(killed_s, survivors), 2))
+        time.sleep(max(start + paced_s - time.monotonic(), 10.0))  # throws after the kill, 10 s of them at least
+    else:
+        time.sleep(paced_s)
+    processes.stop(fleet)
+    try:
+        wait_for(lambda: observer.undiagnosed() == 0, 300, "every throw's diagnosis")
+    except TimeoutError:
+        pass
+    latencies = observer.latencies_ms()
+    out.update(throws=len(observer.records), lost=observer.undiagnosed(), duplicates=observer.duplicates,
+               latency_ms={"p50": round(statistics.median(latencies), 1),
+                           "p95": round(float(np.percentile(latencies, 95)), 1)})
+    if elastic:
+        counters = {name: observer.latest_counters(name) for name in survivors}
+        out.update(taken_over=sum(c.get("taken_over", 0) for c in counters.values()),
+                   held_expired=sum(c.get("held_expired", 0) for c in counters.values()),
+                   switches_owned=[c.get("switches", 0) for c in counters.values()],
+                   third_diagnosed=counters[instance_of(third)].get("diagnosed", 0))
+    return out
+
+
+def records_benchmark(args) -> dict:
+    endpoint = free_loopback_endpoint()
+    paced_s = args.paced_s or (60.0 if args.elastic else 40.0)
+    with tempfile.TemporaryDirectory(prefix="railswitch-bus-") as scratch, ServiceProcesses(Path(scratch)) as processes:
+        work = Path(scratch)
+        library = work / "library.mcap"
+        simulate_to_mcap(library, throws=2, noise_rel=0.01, seed=1)
+        processes.start("router", "--listen", endpoint)
+        session = open_session(BusOptions(connect=(endpoint,)), wait_s=30.0)
+        try:
+            observer = RecordObserver(session)
+            diagnosers = [processes.start("diagnoser", "--connect", endpoint, "--state", str(work / f"state-{k}"),
+                                          "--status-interval", STATUS_S) for k in (1, 2)]
+            wait_ready(session, processes, diagnoser=2)
+            capacity = capacity_run(processes, observer, endpoint, library, diagnosers, args.burst)
+            rate = args.load * capacity["throws_per_s_cleared"]
+            paced = paced_run(processes, session, observer, endpoint, library, work, diagnosers, args.fleet, rate,
+                              paced_s, args.elastic)
+        finally:
+            session.close()
+    result = {"records": True, "elastic": args.elastic, "throws_per_s_cleared": capacity["throws_per_s_cleared"],
+              "switches_per_core": capacity["switches_per_core"], "lost": paced["lost"],
+              "latency_ms": paced["latency_ms"]}
+    if args.elastic:
+        result["settle_s"] = {"join": paced["join_settle_s"], "kill": paced["kill_settle_s"]}
+    return {**result, "capacity": capacity, "paced": paced}
 
 
 if __name__ == "__main__":

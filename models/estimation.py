@@ -2,8 +2,9 @@
 
 A hypothesis frees some of the reduced model's parameters (faults and the switch's own
 build and weather, models/reduced.py PARAMETERS) within bounds, holds the others, and
-fits the model to the throw's measured current, angle and angular velocity, each scaled
-by its range, so the cost is the mean squared error of the three scaled signals.
+fits the model to the throw's measured current, angle and angular velocity (or the current
+alone, where a unit logs nothing else), each scaled by its range, so the cost is the mean
+squared error of the scaled signals.
 Bounded Levenberg-Marquardt (models/least_squares.py) on exact Jacobians; where the
 error is multimodal (a bolt offset or an obstacle position moves the instant something
 happens, not only its size) the best of a grid of cheap residual evaluations starts it.
@@ -24,6 +25,7 @@ the previous throw's fit, or the closed position.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import casadi as ca
@@ -35,7 +37,10 @@ from railswitch.models.reference import Reference
 from railswitch.models.signals import SIGNAL_NAMES as MEASURED
 from railswitch.models.signals import MotorSignals
 
-MODEL_RATE_HZ = 100.0  # the model's grid: a 10 ms step, as two substeps of a 50 Hz sample were
+# The model's grid: 10 ms, half the step the rails are trained at. On the 20 ms step itself an event (a bolt
+# taking up its play, an obstacle met) that moves across a step boundary leaves ripples in the error surface
+# where the solver stalls (a twin throw's 70 mm bolt fitted as 60 mm, the estimates' error twice as wide).
+MODEL_RATE_HZ = 100.0
 CHUNK_SAMPLES = 200  # model samples per compiled call: 2 s
 GRID_CAPACITY = 40  # grid points evaluated in one mapped call: every hypothesis's grid of a throw at once
 # Order-one scales of the parameters for the solver.
@@ -134,6 +139,50 @@ class HypothesisSpec:
     prior: dict[str, tuple[float, float]] = field(default_factory=dict)
     log_prior: tuple[str, ...] = ()  # parameters whose prior is on log(value) (a positive, skewed spread)
 
+    def grid_names(self) -> set[str]:
+        """The parameters its grid sets."""
+        return {name for point in self.grid for name in point}
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper bounds of the free parameters, in `free` order."""
+        return np.array([low for low, _ in self.free.values()]), np.array([high for _, high in self.free.values()])
+
+
+@dataclass(frozen=True)
+class Prior:
+    """A hypothesis's priors as extra residuals sqrt(w) (value - mean) / std (on log(value) for log priors),
+    over the vector of its free parameters (or a matrix of such vectors, one per column)."""
+
+    picked: list[int]  # the free parameters (positions in spec.free) that have a prior
+    size: int  # number of free parameters
+    mean: np.ndarray
+    root_weight: np.ndarray
+    logs: np.ndarray
+
+    @classmethod
+    def of(cls, spec: HypothesisSpec, weight: float) -> Prior:
+        free = list(spec.free)
+        picked = [i for i, n in enumerate(free) if n in spec.prior]
+        return cls(picked, len(free), np.array([spec.prior[free[i]][0] for i in picked]),
+                   np.sqrt(weight) / np.array([spec.prior[free[i]][1] for i in picked]),
+                   np.array([free[i] in spec.log_prior for i in picked], dtype=bool))
+
+    @property
+    def rows(self) -> int:
+        return len(self.picked)
+
+    def residuals(self, z: np.ndarray) -> np.ndarray:
+        values = z[self.picked]
+        logs = self.logs.reshape((-1,) + (1,) * (z.ndim - 1))
+        transformed = np.where(logs, np.log(np.maximum(values, 1e-300)), values)
+        return (self.root_weight * (transformed.T - self.mean)).T
+
+    def jacobian(self, z: np.ndarray) -> np.ndarray:
+        rows = np.zeros((self.rows, self.size))
+        slope = np.where(self.logs, 1.0 / np.maximum(z[self.picked], 1e-300), 1.0)
+        rows[range(self.rows), self.picked] = self.root_weight * slope
+        return rows
+
 
 @dataclass(frozen=True)
 class Estimate:
@@ -147,7 +196,7 @@ class Estimate:
     mse: float  # of the data alone
     objective: float  # MSE plus what the priors charge: what hypotheses are compared by
     iterations: int
-    residual: np.ndarray  # scaled residuals of current, angle and velocity, one column each
+    residual: np.ndarray  # scaled residuals of the signals measured (current, angle, velocity), one column each
     effective_samples: float
 
 
@@ -160,14 +209,16 @@ class _Throw:
     refs: list[np.ndarray]  # per chunk, 2 x CHUNK_SAMPLES
     index: np.ndarray  # per sample: the model sample at or before it (0: the start)
     fraction: np.ndarray  # per sample: how far towards the next model sample
-    measured: np.ndarray  # N x 3
-    inverse_scale: np.ndarray  # 3
+    measured: np.ndarray  # N x signals measured
+    inverse_scale: np.ndarray  # per signal measured
+    rows: list[int]  # the measured signals' rows among MEASURED (all three, or the current alone)
+    on_grid: bool  # every sample at a model sample
 
 
 class ThrowEstimator:
     """Fits hypotheses to throws of any length and rate; build once (compiled once), call per throw."""
 
-    def __init__(self, reduced: ReducedSwitch, compiler: Compiler | None = None, directions: tuple[int, ...] = (5, 7, 9)):
+    def __init__(self, reduced: ReducedSwitch, compiler: Compiler | None = None, directions: tuple[int, ...] = (4, 5, 7, 9)):
         """`reduced` must run at MODEL_RATE_HZ; `directions` are the numbers of free parameters the compiled
         Jacobians serve (a hypothesis uses the smallest that fits); `compiler` makes machine code."""
         if reduced.rate_hz != MODEL_RATE_HZ:
@@ -205,12 +256,16 @@ class ThrowEstimator:
         chunks = max(1, int(np.ceil((index.max() + 1) / CHUNK_SAMPLES)))
         refs = [self.reduced.reference_columns(m.reference, CHUNK_SAMPLES, first=c * CHUNK_SAMPLES) for c in range(chunks)]
         s0 = self.reduced.initial_state(m.start_rail_m, m.start_angle_rad)
-        return _Throw(s0, chunks, refs, index, fraction, m.signals.matrix(), 1.0 / m.scales())
+        rows = [MEASURED.index(name) for name in m.signals.names]
+        return _Throw(s0, chunks, refs, index, fraction, m.signals.matrix(), 1.0 / m.scales(), rows,
+                      not fraction.any())
 
     def _at_samples(self, y: np.ndarray, throw: _Throw) -> np.ndarray:
-        """Model values (rows x model samples, the start first) interpolated at the samples' times: rows x N."""
-        nxt = np.minimum(throw.index + 1, y.shape[1] - 1)
-        return y[:, throw.index] * (1.0 - throw.fraction) + y[:, nxt] * throw.fraction
+        """Model values (... x model samples, the start first) interpolated at the samples' times: ... x N."""
+        if throw.on_grid:  # samples at model samples (a rate that divides the model's): nothing to interpolate
+            return y[..., throw.index]
+        nxt = np.minimum(throw.index + 1, y.shape[-1] - 1)
+        return y[..., throw.index] * (1.0 - throw.fraction) + y[..., nxt] * throw.fraction
 
     @staticmethod
     def _start_outputs(throw: _Throw, names=MEASURED) -> np.ndarray:
@@ -230,11 +285,12 @@ class ThrowEstimator:
         return self.all_outputs(theta, throw)[_MEASURED_ROWS]
 
     def _scaled(self, differences: np.ndarray, throw: _Throw) -> np.ndarray:
-        """3 x N differences scaled, stacked signal by signal, over sqrt(3N): r'r is the MSE."""
+        """Differences (signals measured x N) scaled, stacked signal by signal, over sqrt(their number): r'r is
+        the MSE."""
         return (differences * throw.inverse_scale[:, None]).ravel() / np.sqrt(differences.size)
 
     def residuals(self, theta: np.ndarray, throw: _Throw) -> np.ndarray:
-        return self._scaled(self._at_samples(self.outputs(theta, throw), throw) - throw.measured.T, throw)
+        return self._scaled(self._at_samples(self.outputs(theta, throw)[throw.rows], throw) - throw.measured.T, throw)
 
     def cost(self, theta: np.ndarray, throw: _Throw) -> float:
         r = self.residuals(theta, throw)
@@ -256,7 +312,7 @@ class ThrowEstimator:
                 blocks.append(y.reshape(len(MEASURED), CHUNK_SAMPLES, GRID_CAPACITY, order="F"))
             y = np.concatenate(blocks, axis=1)  # 3 x samples x G
             for g in range(count):
-                r = self._scaled(self._at_samples(y[:, :, g], throw) - throw.measured.T, throw)
+                r = self._scaled(self._at_samples(y[throw.rows, :, g], throw) - throw.measured.T, throw)
                 value = float(r @ r)
                 out.append(value if np.isfinite(value) else np.inf)
         return np.array(out)
@@ -276,9 +332,11 @@ class ThrowEstimator:
             ys.append(y)
             dys.append(dy)
         y, dy = np.hstack(ys), np.hstack(dys)
-        r = self._scaled(self._at_samples(y, throw) - throw.measured.T, throw)
-        columns = [self._scaled(self._at_samples(dy[3 * j:3 * j + 3], throw), throw) for j in range(len(index))]
-        return r, np.column_stack(columns)
+        r = self._scaled(self._at_samples(y[throw.rows], throw) - throw.measured.T, throw)
+        # every free parameter's derivative rows at once: parameters x signals measured x N, scaled as _scaled does
+        derivatives = self._at_samples(dy.reshape(k, len(MEASURED), -1)[:len(index)][:, throw.rows], throw)
+        scaled = derivatives * throw.inverse_scale[None, :, None] / np.sqrt(r.size)
+        return r, scaled.reshape(len(index), -1).T
 
     # -- hypotheses ------------------------------------------------------------------------
     def fit(self, spec: HypothesisSpec, throw: _Throw, start: dict[str, float] | None = None, iterations: int = 20,
@@ -291,23 +349,12 @@ class ThrowEstimator:
         HypothesisSpec.
         """
         free = list(spec.free)
-        low = np.array([spec.free[n][0] for n in free])
-        high = np.array([spec.free[n][1] for n in free])
+        low, high = spec.bounds()
         base = {**spec.fixed, **{n: v for n, v in (start or {}).items() if n in spec.free}}
         theta = self.reduced.vector(base)
         index = [PARAMETERS.index(n) for n in free]
         theta[index] = np.clip(theta[index], low, high)
-        with_prior = [i for i, n in enumerate(free) if n in spec.prior]
-        mean = np.array([spec.prior[free[i]][0] for i in with_prior])
-        root_weight = np.sqrt(prior_weight) / np.array([spec.prior[free[i]][1] for i in with_prior])
-        logs = np.array([free[i] in spec.log_prior for i in with_prior], dtype=bool)
-
-        def transformed(values: np.ndarray) -> np.ndarray:
-            picked = values[with_prior]
-            return np.where(logs, np.log(np.maximum(picked, 1e-300)), picked)
-
-        def penalty(values: np.ndarray) -> np.ndarray:  # the priors as extra residuals
-            return root_weight * (transformed(values) - mean)
+        prior = Prior.of(spec, prior_weight)
 
         def at(values: np.ndarray) -> np.ndarray:
             full = theta.copy()
@@ -316,17 +363,14 @@ class ThrowEstimator:
 
         if not free:
             r = self.residuals(theta, throw)
-            return self._estimate(spec.mode, theta, [], {}, r, float(r @ r), 0)
+            return self._estimate(spec.mode, theta, [], {}, r, float(r @ r), 0, len(throw.rows))
 
         def linearise(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             r, jacobian = self.linearise(at(z), throw, index)
-            prior_rows = np.zeros((len(with_prior), len(free)))
-            slope = np.where(logs, 1.0 / np.maximum(z[with_prior], 1e-300), 1.0)
-            prior_rows[range(len(with_prior)), with_prior] = root_weight * slope
-            return np.concatenate([r, penalty(z)]), np.vstack([jacobian, prior_rows])
+            return np.concatenate([r, prior.residuals(z)]), np.vstack([jacobian, prior.jacobian(z)])
 
         def objective(z: np.ndarray) -> float:
-            return self.cost(at(z), throw) + float(np.sum(penalty(z) ** 2))
+            return self.cost(at(z), throw) + float(np.sum(prior.residuals(z) ** 2))
 
         def keep_going(cost: float, decrease: float, k: int) -> bool:  # can it still beat the rival?
             return cost * (1.0 - decrease) ** (iterations - k) <= rival
@@ -334,28 +378,23 @@ class ThrowEstimator:
         solution = levenberg_marquardt(linearise, theta[index], cost=objective, lower=low, upper=high,
                                        scale=np.array([SCALES[n] for n in free]), iterations=iterations,
                                        tolerance=TOLERANCE, keep_going=keep_going)
-        data_rows = solution.residual.size - len(with_prior)
+        data_rows = solution.residual.size - prior.rows
         r = solution.residual[:data_rows]
-        std = self._std(solution.jacobian, r, low, high, prior_weight)
+        n_eff = effective_samples(r.reshape(len(throw.rows), -1).T)
+        std = self._std(solution.jacobian, r, low, high, prior_weight, n_eff)
         return self._estimate(spec.mode, at(solution.z), free, dict(zip(free, std)), r, solution.cost,
-                              solution.iterations)
-
-    @staticmethod
-    def _with(theta: np.ndarray, point: dict[str, float]) -> np.ndarray:
-        out = theta.copy()
-        for name, value in point.items():
-            out[PARAMETERS.index(name)] = value
-        return out
+                              solution.iterations, len(throw.rows), n_eff)
 
     def _estimate(self, mode: str, theta: np.ndarray, free: list[str], std: dict[str, float], r: np.ndarray,
-                  objective: float, iterations: int) -> Estimate:
+                  objective: float, iterations: int, signals: int, n_eff: float | None = None) -> Estimate:
         values = dict(zip(PARAMETERS, (float(v) for v in theta)))
-        residual = r.reshape(len(MEASURED), -1).T * np.sqrt(r.size)
+        residual = r.reshape(signals, -1).T * np.sqrt(r.size)
         return Estimate(mode, {n: values[n] for n in free}, std, values, float(r @ r), objective, iterations, residual,
-                        effective_samples(residual))
+                        effective_samples(residual) if n_eff is None else n_eff)
 
     @staticmethod
-    def _std(jacobian: np.ndarray, r: np.ndarray, low: np.ndarray, high: np.ndarray, prior_weight: float) -> np.ndarray:
+    def _std(jacobian: np.ndarray, r: np.ndarray, low: np.ndarray, high: np.ndarray, prior_weight: float,
+             n_eff: float) -> np.ndarray:
         """Laplace covariance of the data and the priors (the priors' rows follow the data's in `jacobian`).
 
         The data's information is J'J over the residual variance, counted on N_eff effective samples
@@ -364,7 +403,7 @@ class ThrowEstimator:
         n = r.size
         data, prior = jacobian[:n], jacobian[n:]
         variance = float(r @ r) * n / max(n - jacobian.shape[1], 1)  # per scaled sample (r is divided by sqrt(n))
-        n_eff = max(effective_samples(r.reshape(len(MEASURED), -1).T), jacobian.shape[1] + 1.0)
+        n_eff = max(n_eff, jacobian.shape[1] + 1.0)
         information = (n_eff / max(variance, 1e-300)) * (data.T @ data)
         if len(prior) and prior_weight > 0:
             information = information + (prior.T @ prior) / prior_weight
@@ -380,8 +419,8 @@ class ThrowEstimator:
         return float(np.mean(noise**2)) / throw.measured.size
 
     def grid_starts(self, specs: list[HypothesisSpec], base: dict[str, float], throw: _Throw) -> dict[str, dict]:
-        """Each hypothesis's best grid point (by residual alone, every grid of the throw in one batch), with
-        `base` (the nominal fit) everywhere else."""
+        """Each hypothesis's best grid point by residual alone (every grid point of the throw in one batch),
+        with `base` (the nominal fit) everywhere else."""
         points = [(spec.mode, {**base, **spec.fixed, **point}) for spec in specs for point in spec.grid]
         if not points:
             return {}
@@ -392,9 +431,12 @@ class ThrowEstimator:
                 best[mode] = (cost, point)
         return {mode: point for mode, (_, point) in best.items()}
 
-    def fit_all(self, m: Measurement, specs: dict[str, HypothesisSpec], model_weight: float = 0.0) -> dict[str, Estimate]:
+    def fit_all(self, m: Measurement, specs: dict[str, HypothesisSpec], model_weight: float = 0.0,
+                joint_when: Callable[[dict[str, Estimate]], bool] | None = None) -> dict[str, Estimate]:
         """The nominal hypothesis first; each fault mode started from the nominal fit (its own parameters from
-        their grid) and stopped once it cannot beat the best so far; joint last, from the best mode.
+        their grid) and stopped once it cannot beat the best so far; joint last, from the best mode,
+        and only when `joint_when(the estimates so far)` says it is worth it (a throw that shows no fault needs
+        none).
 
         Every hypothesis of the throw shares one prior weight, so their objectives compare: the larger of
         the throw's noise (noise_weight) and `model_weight`, the residual variance over the effective number
@@ -408,7 +450,7 @@ class ThrowEstimator:
         for mode in modes:
             rival = min(estimate.objective for estimate in out.values())
             out[mode] = self.fit(specs[mode], throw, starts.get(mode, nominal), rival=rival, prior_weight=weight)
-        if "joint" in specs:
+        if "joint" in specs and (joint_when is None or joint_when(out)):
             best = min(modes, key=lambda mode: out[mode].objective) if modes else "nominal"
             out["joint"] = self.fit(specs["joint"], throw, out[best].values, prior_weight=weight)
         return out

@@ -51,6 +51,7 @@ ENTER = 2
 SURPRISE = 4.0  # innovations beyond this many standard deviations are outliers (or, twice running, a step)
 STATES = ("ok", "watch", "alarm")
 DRAWS = 400
+LOW_QUANTILE, HIGH_QUANTILE = 0.05, 0.95  # of the throws-to-limit interval
 
 
 @dataclass
@@ -140,7 +141,7 @@ class HealthTracker:
                  seed: int = 0):
         self.limits = {**DEFAULT_LIMITS, **(limits or {})}
         self.model_error = model_error or {}
-        self._rng = np.random.default_rng(seed)
+        self._normal = np.random.default_rng(seed).standard_normal((DRAWS, 2))  # reused: the same draws each throw
         self.reset()
 
     def reset(self) -> None:
@@ -202,11 +203,13 @@ class HealthTracker:
         if slope <= 0:
             return None, None, None
         covariance = tracker.p + np.diag([model_error**2, 0.0])
-        draws = self._rng.multivariate_normal(tracker.x, covariance, size=DRAWS, method="eigh")
+        eigenvalues, vectors = np.linalg.eigh(covariance)
+        draws = tracker.x + self._normal @ (vectors * np.sqrt(np.maximum(eigenvalues, 0.0))).T
         rising = draws[:, 1] > 0
         times = np.sort(np.maximum((limit - draws[rising, 0]) / draws[rising, 1], 0.0))
-        low = float(times[int(0.05 * DRAWS)]) if len(times) > 0.05 * DRAWS else None
-        high = float(times[int(0.95 * DRAWS) - (DRAWS - len(times))]) if len(times) > 0.95 * DRAWS else None
+        # quantiles over every draw: a draw that never rises never reaches the limit (an infinite time, above all)
+        low = float(times[int(LOW_QUANTILE * DRAWS)]) if int(LOW_QUANTILE * DRAWS) < len(times) else None
+        high = float(times[int(HIGH_QUANTILE * DRAWS)]) if int(HIGH_QUANTILE * DRAWS) < len(times) else None
         return float((limit - level) / slope), low, high
 
     def _state(self, name: str, level: float, level_std: float, to_limit: float | None, high: float | None) -> str:

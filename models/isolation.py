@@ -22,9 +22,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
-from railswitch.models.estimation import DRIVING_BOLT, Estimate, effective_samples
+from railswitch.models.estimation import DRIVING_BOLT, Estimate
 from railswitch.schemas.faults import MODE_PARAMETERS
 
 FALSE_ALARM_RATE = 1e-3  # per fault mode and throw, under the nominal hypothesis
@@ -56,7 +56,7 @@ def accumulated(latest: Evidence, earlier: list[Evidence]) -> Evidence:
     total, dof = latest.statistic, latest.dof
     for previous in earlier[:windows]:
         total, dof = total + previous.statistic, dof + previous.dof
-        critical = stats.chi2.ppf(1.0 - FALSE_ALARM_RATE / EVIDENCE_THROWS, dof)
+        critical = special.chdtri(dof, FALSE_ALARM_RATE / EVIDENCE_THROWS)  # chi-square's upper quantile
         best = max(best, total / critical)
     return Evidence(latest.mode, best, latest.statistic, latest.dof)
 
@@ -69,12 +69,12 @@ def evidence(estimates: dict[str, Estimate], mode: str, model_gain: float = 0.0)
     """
     fitted, nominal = estimates[mode], estimates["nominal"]
     p = len(MODE_PARAMETERS[mode])
-    n = effective_samples(fitted.residual)
+    n = fitted.effective_samples
     gain = nominal.objective - fitted.objective - MODEL_ERROR_MARGIN * model_gain
     if n <= p + 1 or fitted.mse <= 0:
         return Evidence(mode, 0.0 if gain <= 0 else np.inf, 0.0 if gain <= 0 else np.inf, p)
     f = max(gain, 0.0) / p / (fitted.mse / (n - p))
-    critical = stats.f.ppf(1.0 - FALSE_ALARM_RATE / EVIDENCE_THROWS, p, n - p)
+    critical = special.fdtri(p, n - p, 1.0 - FALSE_ALARM_RATE / EVIDENCE_THROWS)  # F's quantile
     return Evidence(mode, f / critical, p * f, p)
 
 

@@ -7,7 +7,8 @@ import numpy as np
 
 from railswitch.models.drive import DriveParams
 
-THROW_DURATION_S = 7.0
+THROW_DURATION_S = 7.0  # the reference profile of the machine type modelled: a 6.4 s stroke, then still
+STROKE_S = 6.4
 DIRECTIONS = ("left_to_right", "right_to_left")
 
 
@@ -33,9 +34,14 @@ def direction_sign(direction: str) -> float:
     return 1.0 if direction == "left_to_right" else -1.0
 
 
-def throw_reference(direction: str, drive: DriveParams = DriveParams(), ramp_s: float = 0.4,
-                    run_s: float = 6.0) -> Reference:
-    """Trapezoid that turns the crank by exactly half a revolution, then holds still until 7 s."""
+def throw_reference(direction: str, drive: DriveParams = DriveParams(), stroke_s: float = STROKE_S,
+                    duration_s: float = THROW_DURATION_S, ramp_s: float = 0.4) -> Reference:
+    """Trapezoid that turns the crank by exactly half a revolution in `stroke_s` (ramps included), then holds
+    still until `duration_s`. Point machines of other types (or gearings) stroke faster or slower."""
+    if not 2 * ramp_s < stroke_s <= duration_s:
+        raise ValueError(f"a stroke of {stroke_s:g} s must be longer than its two {ramp_s:g} s ramps and end "
+                         f"by the throw's {duration_s:g} s")
+    run_s = stroke_s - ramp_s
     plateau = direction_sign(direction) * drive.throw_angle_rad / run_s
-    t = np.array([0.0, ramp_s, run_s, run_s + ramp_s, THROW_DURATION_S])
+    t = np.array([0.0, ramp_s, run_s, stroke_s, duration_s])
     return Reference(t, np.array([0.0, plateau, plateau, 0.0, 0.0]))

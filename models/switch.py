@@ -10,7 +10,7 @@ from functools import lru_cache
 import numpy as np
 
 from railswitch.models.plant import Plant
-from railswitch.models.reference import DIRECTIONS, THROW_DURATION_S, Reference, throw_reference
+from railswitch.models.reference import DIRECTIONS, STROKE_S, THROW_DURATION_S, Reference, throw_reference
 from railswitch.models.signals import SIGNAL_NAMES, MotorSignals
 
 SETTLE_S = 1.0  # unpowered settling before the first sample, from the closed left position
@@ -60,9 +60,16 @@ class SwitchSimulation:
     """Advances one plant through throws (alternating, starting left to right from 1.00 m)."""
 
     def __init__(self, plant: Plant, *, rate_hz: float = 50.0, faults: dict[str, float] | None = None,
-                 noise_rel: float = 0.0, seed: int = 0, start_ns: int = 0, own: dict[str, float] | None = None):
-        """`own`: this switch's build and weather (plant variables, schemas/plant.py) where not nominal."""
+                 noise_rel: float = 0.0, seed: int = 0, start_ns: int = 0, own: dict[str, float] | None = None,
+                 stroke_s: float = STROKE_S, end_s: float | None = None):
+        """`own`: this switch's build and weather (plant variables, schemas/plant.py) where not nominal.
+        `stroke_s`: its machine type's stroke time (the reference profile holds still for another
+        THROW_DURATION_S - STROKE_S after it); `end_s`: when each throw's end event comes (default: when the
+        reference profile ends; earlier or later, as a machine detecting its end position would have it)."""
         self.plant = plant
+        self.stroke_s = float(stroke_s)
+        self.end_s = float(end_s) if end_s is not None else self.reference_end_s
+        throw_reference(DIRECTIONS[0], plant.params.drive, self.stroke_s, self.reference_end_s)  # checks stroke_s
         self.start_ns = int(start_ns)
         self.rate_hz = float(rate_hz)
         self.faults = dict(faults or {})
@@ -103,11 +110,15 @@ class SwitchSimulation:
     def next_direction(self) -> str:
         return DIRECTIONS[self.throw_count % 2]
 
+    @property
+    def reference_end_s(self) -> float:
+        return self.stroke_s + THROW_DURATION_S - STROKE_S
+
     def throw(self, direction: str | None = None, reference: Reference | None = None) -> Throw:
-        """Power the motor for one throw of 7 s and return its samples."""
+        """Power the motor for one throw (until end_s) and return its samples."""
         direction = direction or self.next_direction()
-        reference = reference or throw_reference(direction, self.plant.params.drive)
-        trajectory = self.plant.run(self.plant.start_throw(self.state), THROW_DURATION_S, self.rate_hz,
+        reference = reference or throw_reference(direction, self.plant.params.drive, self.stroke_s, self.reference_end_s)
+        trajectory = self.plant.run(self.plant.start_throw(self.state), self.end_s, self.rate_hz,
                                     self.faults, reference, self.own)
         start = self.sample_index
         throw = Throw(self.throw_count, direction, reference, start, self._samples(trajectory, start + 1))
@@ -166,11 +177,16 @@ class ReplayedSwitch:
 
     def _hold(self, first_index: int, count: int) -> Samples:
         last = self._last.signals[-1:]
-        values = MotorSignals(*(np.repeat(getattr(last, name), count) for name in SIGNAL_NAMES))
+        values = MotorSignals(**{name: np.repeat(getattr(last, name), count) for name in last.names})
         return Samples(first_index, values, np.full(count, np.nan))
 
     def initial_sample(self) -> Samples:
         return self._hold(0, 1)
+
+    @property
+    def end_s(self) -> float:
+        """The longest recorded throw's length: what an interval between throw starts must leave room for."""
+        return max(len(t.signals) for recorded in self._throws.values() for t in recorded) / self.rate_hz
 
     def next_direction(self) -> str:
         return DIRECTIONS[self.throw_count % 2]

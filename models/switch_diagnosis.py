@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from railswitch.models.drive import DriveParams
 from railswitch.models.estimation import DRIVING_BOLT, Estimate, HypothesisSpec, Measurement, ThrowEstimator
 from railswitch.models.health import TRACKED, Health, HealthTracker
 from railswitch.models.isolation import EVIDENCE_THROWS, OTHER_DIRECTION, Evidence, healthy_gains, judge
@@ -52,6 +53,11 @@ from railswitch.schemas.plant import PLANT_PARAMETERS
 
 CLOSED_START_M = {"left_to_right": 1.0, "right_to_left": 1.2}  # where a throw starts when the last one closed
 GAP_TOLERANCE = 0.25  # of a sample period, for "the samples are evenly spaced"
+# A throw ends when the point machine detects its end position, earlier or later than its reference profile
+# ends; it is cut short only when it ends while the motor is still asked to turn (or, where measured, still
+# turns) at more than this share of its top speed.
+STILL_SHARE = 0.1
+MAX_THROW_S = 30.0  # longer than any point machine's throw, stalled or not
 COMMISSIONING_THROWS = 4  # healthy throws each way that make a switch's baseline (at most 6 are asked for)
 # Fault-like parameters with a healthy level per switch: the extra rail damping of the bearing port and
 # the point machine's Coulomb friction.
@@ -189,16 +195,28 @@ class ThrowInput:
     missing_samples: int = 0
 
 
-def start_angle(t_s: np.ndarray, signals: MotorSignals) -> float:
+def start_angle(t_s: np.ndarray, signals: MotorSignals, direction: str, drive: DriveParams) -> float:
     """Motor angle at the throw's start, from every sample rather than the first alone.
 
     angle(t) = angle(0) + integral of the velocity, so each sample gives an
     estimate of angle(0); their mean is far less noisy than the first sample
-    (a wrong start angle shifts the rod and looks like a bolt offset).
+    (a wrong start angle shifts the rod and looks like a bolt offset). Without
+    angle and velocity (a current-only unit), the crank's dead centre the throw
+    starts from: there the rod hardly moves with the angle, so little is lost.
     """
     velocity = signals.velocity_rad_s
+    if signals.angle_rad is None:
+        return 0.0 if direction == "left_to_right" else drive.throw_angle_rad
+    if velocity is None:
+        return float(signals.angle_rad[0])
     travelled = np.concatenate([[0.0], np.cumsum(0.5 * (velocity[1:] + velocity[:-1]) * np.diff(t_s))])
     return float(np.mean(signals.angle_rad - travelled))
+
+
+def measurement(throw: ThrowInput, start_rail_m: float, drive: DriveParams = DriveParams()) -> Measurement:
+    """What the estimator fits: the samples after the start, from the start's angle and the given rail position."""
+    return Measurement(throw.direction, throw.reference, throw.t_s[1:], throw.signals[1:],
+                       start_angle(throw.t_s, throw.signals, throw.direction, drive), start_rail_m)
 
 
 def sample_rate_hz(t_s: np.ndarray) -> float:
@@ -224,8 +242,23 @@ def problem(throw: ThrowInput) -> str | None:
         return f"samples are not evenly spaced at {rate_hz:g} Hz (largest gap {worst * 1e3:.0f} ms)"
     if throw.t_s[-1] < throw.duration_s - GAP_TOLERANCE * period:
         return f"samples stop at {throw.t_s[-1]:.2f} s of a {throw.duration_s:.2f} s throw"
-    if throw.duration_s < float(throw.reference.t_s[-1]) - GAP_TOLERANCE * period:
-        return f"throw ended at {throw.duration_s:.2f} s, before its {throw.reference.t_s[-1]:.2f} s reference"
+    if throw.duration_s > MAX_THROW_S:
+        return f"throw lasted {throw.duration_s:.1f} s, longer than any point machine's ({MAX_THROW_S:g} s)"
+    return cut_short(throw)
+
+
+def cut_short(throw: ThrowInput) -> str | None:
+    """Why the throw looks cut off while the rails were still moving, or None when they had stopped."""
+    commanded = np.abs(throw.reference.velocity_rad_s)
+    top = float(commanded.max())
+    if abs(float(throw.reference(throw.duration_s))) > STILL_SHARE * top:
+        last_moving = int(np.flatnonzero(commanded > STILL_SHARE * top)[-1])
+        stops = float(throw.reference.t_s[min(last_moving + 1, len(commanded) - 1)])
+        return (f"throw ended at {throw.duration_s:.2f} s while its motor was still asked to turn "
+                f"(its reference stops at {stops:.2f} s)")
+    velocity = throw.signals.velocity_rad_s
+    if velocity is not None and abs(float(velocity[-1])) > STILL_SHARE * max(top, float(np.max(np.abs(velocity)))):
+        return f"throw ended at {throw.duration_s:.2f} s while its motor was still turning"
     return None
 
 
@@ -305,6 +338,7 @@ class SwitchDiagnoser:
         self.rail_m: float | None = None  # blades' position after the last diagnosed throw
         self.track: list[ThrowVerdict] = []  # throws since the decided fault appeared
         self.evidence: dict[str, list[Evidence]] = {}  # per mode, from the latest throws that saw it, latest first
+        self.drive = estimator.reduced.params.plant.drive
 
     # -- commissioning ------------------------------------------------------------------------
     def restart_commissioning(self) -> None:
@@ -438,12 +472,14 @@ class SwitchDiagnoser:
             self.rail_m = None  # unknown where the blades are: assume the next throw starts closed
             return Outcome("unknown", why, None, None)
         start_rail = self.rail_m if self.rail_m is not None else CLOSED_START_M[throw.direction]
-        m = Measurement(throw.direction, throw.reference, throw.t_s[1:], throw.signals[1:],
-                        start_angle(throw.t_s, throw.signals), start_rail)
+        m = measurement(throw, start_rail, self.drive)
         provisional = not self.baseline.complete
         weight = self.prior.model_weight if provisional else self.baseline.model_weight()
-        estimates = self.estimator.fit_all(m, self.specs(throw.direction), weight)
-        mode, found = judge(throw.direction, estimates, self._gains(throw.direction), self.evidence)
+        gains = self._gains(throw.direction)
+        estimates = self.estimator.fit_all(
+            m, self.specs(throw.direction), weight,
+            joint_when=lambda fits: judge(throw.direction, fits, gains, self.evidence)[0] != "nominal")
+        mode, found = judge(throw.direction, estimates, gains, self.evidence)
         for name, seen in found.items():
             self.evidence[name] = [seen, *self.evidence.get(name, [])][:EVIDENCE_THROWS]
         fitted = self.estimator.simulate(m, estimates[mode].values)

@@ -13,6 +13,16 @@ from railswitch.schemas.faults import (
     check_fault_value,
 )
 from railswitch.schemas.plant import PLANT_PARAMETERS, check_plant_value
+from railswitch.schemas.history import (
+    DEFAULT_LIMIT,
+    HISTORY_KEYS,
+    HISTORY_KINDS,
+    MAX_LIMIT,
+    HistoryQuery,
+    HistoryReply,
+    history_key,
+    parse_time,
+)
 from railswitch.schemas.messages import (
     CHANNEL_MODELS,
     CONTRACT_VERSION,
@@ -21,6 +31,7 @@ from railswitch.schemas.messages import (
     ParameterHealth,
     SwitchHealth,
     ThrowRecord,
+    SwitchState,
     decode_counted,
     CommissionCommand,
     Commissioning,
@@ -44,6 +55,14 @@ from railswitch.schemas.messages import (
 )
 
 __all__ = [
+    "DEFAULT_LIMIT",
+    "HISTORY_KEYS",
+    "HISTORY_KINDS",
+    "MAX_LIMIT",
+    "HistoryQuery",
+    "HistoryReply",
+    "history_key",
+    "parse_time",
     "PLANT_PARAMETERS",
     "check_plant_value",
     "CHANNEL_MODELS",
@@ -52,6 +71,7 @@ __all__ = [
     "ParameterHealth",
     "SwitchHealth",
     "ThrowRecord",
+    "SwitchState",
     "decode_counted",
     "CommissionCommand",
     "Commissioning",

@@ -2,6 +2,8 @@
 
 import json
 import re
+from collections.abc import Iterator
+from functools import cache
 from typing import Annotated, Literal, Self, TypeVar
 
 from pydantic import (
@@ -14,6 +16,7 @@ from pydantic import (
     field_validator,
     model_validator,
 )
+from pydantic_core import from_json
 
 from railswitch.schemas.plant import PLANT_PARAMETERS, check_plant_values
 from railswitch.schemas.faults import (
@@ -73,10 +76,12 @@ class Message(BaseModel):
 
     A newer publisher may add fields: an older subscriber reads what it knows and drops the rest
     (decode_counted names them, so services count them per field name). Every payload carries the
-    contract version it was written to."""
+    contract version it was written to; a newer one is read as far as this version understands it."""
 
     model_config = ConfigDict(extra="ignore", allow_inf_nan=False, frozen=True)
 
+    # A payload without it predates the field: version 1. While CONTRACT_VERSION is 1 the default says so;
+    # a bump must keep reading a missing version as 1 (tests/unit/test_messages.py holds that to account).
     contract: Annotated[int, Field(ge=1, le=1000)] = CONTRACT_VERSION
 
 
@@ -331,6 +336,18 @@ class ThrowRecord(Message):
         return self
 
 
+class SwitchState(Message):
+    """What a diagnoser needs to resume a switch (railswitch/<id>/state): its commissioned baseline and health
+    tracker after a throw, as the reduced model `model` learnt them. Published after every throw, so the diagnoser
+    that takes the switch over (docs/contracts.md, "Elastic shards") goes on from there."""
+
+    switch_id: SwitchId
+    model: RailModel
+    throw_index: Index  # the throw it follows
+    t_ns: TimeNs  # that throw's end
+    state: dict  # opaque to the contract: models/switch_diagnosis.py SwitchDiagnoser.state()
+
+
 class ServiceStatus(Message):
     """What a live service reports every few seconds on railswitch/service/<service>/<instance>/status."""
 
@@ -353,6 +370,7 @@ CHANNEL_MODELS: dict[str, type[Message]] = {
     "commission": CommissionCommand,
     "health": SwitchHealth,
     "record": ThrowRecord,
+    "state": SwitchState,
 }
 
 KEY_PREFIX = "railswitch"
@@ -396,14 +414,39 @@ def encode(msg: BaseModel) -> bytes:
 
 
 def decode_counted(model_cls: type[M], data: bytes) -> tuple[M, list[str]]:
-    """decode, and the names of the payload's top-level fields the model does not know (a newer publisher's)."""
+    """decode, and what of the payload this version does not know, as names to count (docs/contracts.md,
+    "Changing the contract"): every unknown field, nested ones by their dotted path (`estimate.since`, list
+    items unnumbered: `hypotheses.note`), and `contract=N` when the payload was written to a newer contract.
+
+    The payload is parsed a second time, by the JSON parser pydantic validated it with (it takes all the
+    validator took), to see what validation dropped: models keep only what they know."""
     message = decode(model_cls, data)
-    try:
-        names = json.loads(data)
-    except ValueError:  # decode accepted it: cannot happen
-        return message, []
-    known = model_cls.model_fields
-    return message, sorted(name for name in names if name not in known) if isinstance(names, dict) else []
+    unknown = sorted(set(_unknown_fields(message, from_json(data))))
+    if isinstance(message, Message) and message.contract > CONTRACT_VERSION:
+        unknown.append(f"contract={message.contract}")
+    return message, unknown
+
+
+@cache
+def _field_names(model_cls: type[BaseModel]) -> frozenset[str]:
+    return frozenset(model_cls.model_fields)
+
+
+def _unknown_fields(message: BaseModel, raw: object, prefix: str = "") -> Iterator[str]:
+    """Paths of the keys in raw (the payload as parsed JSON) that message's model ignored, at every depth of
+    nested models (alone or in lists)."""
+    if not isinstance(raw, dict):
+        return
+    known = _field_names(type(message))
+    for name, raw_value in raw.items():
+        if name not in known:
+            yield prefix + name
+        elif isinstance(raw_value, (dict, list)):  # only these can hold a nested message
+            value = getattr(message, name)
+            items, raw_items = (value, raw_value) if isinstance(value, list) else ([value], [raw_value])
+            if items and isinstance(items[0], BaseModel):  # one type per list: a record's floats are not walked
+                for item, raw_item in zip(items, raw_items):
+                    yield from _unknown_fields(item, raw_item, f"{prefix}{name}.")
 
 
 def decode(model_cls: type[M], data: bytes) -> M:

@@ -39,7 +39,7 @@ from railswitch.schemas.faults import FAULT_PARAMETERS, check_fault_value
 from railswitch.schemas.messages import SwitchId, _check_fault_names, _check_fault_values
 from railswitch.schemas.plant import PLANT_PARAMETERS, check_plant_value, check_plant_values
 
-THROW_S = 7.0  # a throw's duration (models/reference.py THROW_DURATION_S); an interval must exceed it
+STROKE_S = 6.4  # the modelled machine type's stroke time (models/reference.py); its profile ends 0.6 s later
 
 
 def is_plant_name(name: str) -> bool:
@@ -140,20 +140,29 @@ class SwitchPlan(_Strict):
 class Scenario(_Strict):
     """A schedule of throws and fault changes for one or more switches."""
 
-    interval_s: Annotated[float, Field(gt=THROW_S, le=86_400.0)] = 10.0
+    interval_s: Annotated[float, Field(gt=0.0, le=86_400.0)] = 10.0
     rate_hz: Annotated[float, Field(ge=1.0, le=1000.0)] = 50.0
+    stroke_s: Annotated[float, Field(ge=2.0, le=14.0)] = STROKE_S  # the point machines' stroke time
+    throw_s: Annotated[float, Field(ge=1.0, le=30.0)] | None = None  # end event's time (default stroke_s + 0.6)
     noise: Annotated[float, Field(ge=0.0, le=0.5)] = 0.0
     seed: Annotated[int, Field(ge=0, lt=2**32)] = 0
     switches: Annotated[list[SwitchPlan], Field(min_length=1)]
 
     @model_validator(mode="after")
     def _check(self) -> Self:
+        if self.interval_s <= self.throw_length_s:
+            raise ValueError(f"interval_s {self.interval_s:g} must exceed a throw's length ({self.throw_length_s:g} s)")
         ids = [plan.id for plan in self.switches]
         if len(set(ids)) != len(ids):
             raise ValueError(f"switch ids repeat: {ids}")
         for plan in self.switches:
             plan.schedule()  # every stepped value stays in range
         return self
+
+
+    @property
+    def throw_length_s(self) -> float:
+        return self.throw_s if self.throw_s is not None else self.stroke_s + 0.6
 
 
 class ScenarioError(ValueError):

@@ -26,6 +26,16 @@ def shipped_models_only(tmp_path_factory):
     patch.undo()
 
 
+@pytest.fixture(autouse=True, scope="session")
+def own_state_directory(tmp_path_factory):
+    """Baselines the diagnosers of the tests commission (in this process and in every service process they
+    start) go to a folder of the session, never into the developer's ~/.local/state."""
+    patch = pytest.MonkeyPatch()
+    patch.setenv("RAILSWITCH_STATE", str(tmp_path_factory.mktemp("state")))
+    yield
+    patch.undo()
+
+
 @pytest.fixture(scope="session")
 def plant() -> Plant:
     """One plant per test session: building its CasADi functions takes a moment."""

@@ -39,8 +39,10 @@ class MachineCode:
     def __init__(self, cache_dir: Path | None = None, *, cached: bool = True):
         self.cache_dir = (cache_dir or default_cache_dir()) if cached else None
         self.machine_code = True
+        self.calls = 0  # sets of Functions made machine code (compiled, or loaded from the cache)
 
     def __call__(self, functions: list[ca.Function]) -> list[ca.Function]:
+        self.calls += 1
         compiled, ok = jit_compiled_all(functions, self.cache_dir)
         self.machine_code = self.machine_code and ok
         return compiled

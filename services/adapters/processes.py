@@ -15,6 +15,7 @@ from pathlib import Path
 import zenoh
 
 from railswitch.schemas import SERVICE_PREFIX
+from railswitch.services.adapters.zenoh_bus import instance_name
 
 
 class ServiceProcesses:
@@ -66,6 +67,11 @@ class ServiceProcesses:
 
     def __exit__(self, *exc) -> None:
         self.stop_all()
+
+
+def instance_of(process: subprocess.Popen) -> str:
+    """A child service's instance, as it names itself on the bus (its liveliness token and status)."""
+    return instance_name(process.pid)
 
 
 def free_loopback_endpoint() -> str:

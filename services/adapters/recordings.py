@@ -21,7 +21,7 @@ from railswitch.schemas import (
     CHANNEL_MODELS,
     Message,
     MessageError,
-    decode,
+    decode_counted,
     encode,
     json_schema,
     parse_key_expr,
@@ -115,8 +115,9 @@ class RecordingWriter:
         killed after this loses nothing written before it."""
         self._writer.flush()
 
-    def write(self, key: str, message: Message, log_time_ns: int | None = None) -> None:
-        """Append message on the channel of key; log time defaults to the message's t_ns."""
+    def write(self, key: str, message: Message, log_time_ns: int | None = None, payload: bytes | None = None) -> None:
+        """Append message on the channel of key; log time defaults to the message's t_ns. `payload`: the bytes
+        message was decoded from, stored as they are, so what a newer publisher added stays in the file."""
         channel_id, model_cls, switch_id = self._channels.get(key) or self._register(key)
         if type(message) is not model_cls:
             raise TypeError(f"{key} carries {model_cls.__name__}, not {type(message).__name__}")
@@ -133,7 +134,7 @@ class RecordingWriter:
             channel_id=channel_id,
             log_time=log_time,
             publish_time=log_time,
-            data=encode(message),
+            data=encode(message) if payload is None else payload,
             sequence=sequence % _UINT32,
         )
         self.message_count += 1
@@ -167,17 +168,19 @@ class RecordingReader:
     """Iterate a recording's messages in file order; stop quietly at damage and report it.
 
     After iteration: messages_read counts messages yielded, skipped counts the others by
-    reason (unknown topic or a MessageError reason), damage describes where the file broke.
+    reason (unknown topic or a MessageError reason), ignored counts what the yielded ones held that
+    this version does not know (`<kind>: <field>`, `<kind>: contract=N`), damage describes where the file broke.
     """
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
         self.messages_read = 0
         self.skipped: Counter[str] = Counter()
+        self.ignored: Counter[str] = Counter()
         self.damage: str | None = None
 
     def __iter__(self) -> Iterator[RecordedMessage]:
-        self.messages_read, self.skipped, self.damage = 0, Counter(), None
+        self.messages_read, self.skipped, self.ignored, self.damage = 0, Counter(), Counter(), None
         with open(self.path, "rb") as f:
             for channel, record in self._records(f):
                 try:
@@ -186,10 +189,11 @@ class RecordingReader:
                     self.skipped["unknown topic"] += 1
                     continue
                 try:
-                    message = decode(CHANNEL_MODELS[kind], record.data)
+                    message, unknown = decode_counted(CHANNEL_MODELS[kind], record.data)
                 except MessageError as e:
                     self.skipped[str(e)] += 1
                     continue
+                self.ignored.update(f"{kind}: {name}" for name in unknown)
                 self.messages_read += 1
                 yield RecordedMessage(channel.topic, kind, switch_id, message, record.log_time)
 
@@ -234,26 +238,30 @@ class Recording:
     records: list[RecordedMessage]
     damage: str | None
     skipped: Counter[str]
+    ignored: Counter[str]  # what a newer writer added, per name
 
     @property
     def messages(self) -> list[Message]:
         return [record.message for record in self.records]
 
     def note(self) -> str | None:
-        """One line on damage and skipped messages, or None when the file was clean."""
+        """One line on damage, skipped messages and what was ignored, or None when the file was clean."""
         notes = []
         if self.damage:
             notes.append(f"{self.damage}; recovered {len(self.records)} messages before it")
         if self.skipped:
             notes.append("skipped " + ", ".join(f"{n} ({reason})" for reason, n in self.skipped.items()))
+        if self.ignored:
+            notes.append("ignored what this version does not know: "
+                         + ", ".join(f"{name} ({n} messages)" for name, n in sorted(self.ignored.items())))
         return "; ".join(notes) or None
 
 
 def load_recording(path: str | os.PathLike[str]) -> Recording:
-    """All decoded messages of a recording, read once, with its damage and skip counts."""
+    """All decoded messages of a recording, read once, with its damage, skip and ignore counts."""
     reader = RecordingReader(path)
     records = list(reader)
-    return Recording(records, reader.damage, reader.skipped)
+    return Recording(records, reader.damage, reader.skipped, reader.ignored)
 
 
 def recover_recording(source: str | os.PathLike[str], target: str | os.PathLike[str]) -> Recording:

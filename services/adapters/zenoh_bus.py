@@ -14,7 +14,7 @@ import signal
 import socket
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, NamedTuple
@@ -49,6 +49,7 @@ class BusOptions:
     listen: tuple[str, ...] = ()
     config_file: str | None = None
     multicast_scouting: bool = False
+    lease_ms: int | None = None  # how long the router waits on a silent session before dropping it (and its tokens)
 
 
 def zenoh_config(options: BusOptions) -> zenoh.Config:
@@ -75,6 +76,8 @@ def zenoh_config(options: BusOptions) -> zenoh.Config:
     except zenoh.ZError as error:
         raise BusError(f"bad endpoint in {connect + list(options.listen)}: {_one_line(error)}") from None
     config.insert_json5("scouting/multicast/enabled", json.dumps(options.multicast_scouting))
+    if options.lease_ms is not None:
+        config.insert_json5("transport/link/tx/lease", str(options.lease_ms))
     if mode != "router":
         # Fail fast inside open() so that the retry loop below stays interruptible; once
         # connected, Zenoh itself reconnects when the router comes back.
@@ -111,15 +114,74 @@ def open_session(options: BusOptions, *, retry: bool = True, wait_s: float | Non
             config = zenoh_config(options)  # a config is consumed by open()
 
 
-def instance_name() -> str:
-    """This process, as a key chunk: host-pid."""
+def instance_name(pid: int | None = None) -> str:
+    """This process (or process pid of this host), as a key chunk: host-pid."""
     host = "".join(c if c.isalnum() or c in "-_" else "-" for c in socket.gethostname()) or "host"
-    return f"{host}-{os.getpid()}"
+    return f"{host}-{os.getpid() if pid is None else pid}"
 
 
 def declare_service(session: zenoh.Session, name: str) -> zenoh.LivelinessToken:
     """Liveliness token railswitch/service/<name>/<instance> (docs/contracts.md section 3)."""
     return session.liveliness().declare_token(f"{SERVICE_PREFIX}/{name}/{instance_name()}")
+
+
+class LivelinessWatch:
+    """The live instances of a service (tokens railswitch/service/<name>/<instance>): those present now, then
+    every join and leave, queued by the callback with its arrival time for the service's own loop. A session that
+    dies takes its token with it: at once when its connection closes, after its lease when it goes silent."""
+
+    def __init__(self, session: zenoh.Session, name: str):
+        self._queue: queue.SimpleQueue[tuple[str, bool, float]] = queue.SimpleQueue()
+        pattern = f"{SERVICE_PREFIX}/{name}/*"
+        # Without history: a liveliness get right after a subscriber with history often comes back empty (zenoh
+        # 1.10), and the tokens present would then arrive as joins of now rather than of before this one started.
+        self._subscriber = session.liveliness().declare_subscriber(pattern, self._on_sample, history=False)
+        self.present = {_last_chunk(reply.ok.key_expr) for reply in session.liveliness().get(pattern)
+                        if reply.ok is not None}  # asked after subscribing, so no change falls in between
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        self._queue.put((_last_chunk(sample.key_expr), sample.kind == zenoh.SampleKind.PUT, time.monotonic()))
+
+    def changes(self) -> list[tuple[str, bool, float]]:
+        """(instance, alive, arrival in monotonic s) of every change since the last call."""
+        out = []
+        while True:
+            try:
+                out.append(self._queue.get_nowait())
+            except queue.Empty:
+                return out
+
+
+def _last_chunk(key: zenoh.KeyExpr) -> str:
+    return str(key).rsplit("/", 1)[-1]
+
+
+class QueryInbox:
+    """A queryable whose callback only queues the queries; the service answers them in its own loop."""
+
+    def __init__(self, session: zenoh.Session, key: str):
+        self._queue: queue.SimpleQueue[zenoh.Query] = queue.SimpleQueue()
+        self._queryable = session.declare_queryable(key, self._queue.put)
+
+    def answer(self, replies: Callable[[], list[tuple[str, bytes]]]) -> None:
+        """Reply to every waiting query with `replies()` (key, payload) that match it."""
+        while True:
+            try:
+                query = self._queue.get_nowait()
+            except queue.Empty:
+                return
+            with query:  # dropping a query tells the querier that this queryable is done
+                for key, payload in replies():
+                    if query.key_expr.intersects(key):
+                        query.reply(key, payload, encoding=zenoh.Encoding.APPLICATION_JSON)
+
+
+def query_all(session: zenoh.Session, key: str, timeout_s: float) -> list[Received]:
+    """Every reply of every queryable on key (none consolidated away), as received payloads."""
+    replies = session.get(key, target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE,
+                          timeout=timeout_s)
+    return [Received(str(reply.ok.key_expr), reply.ok.payload.to_bytes(), time.monotonic())
+            for reply in replies if reply.ok is not None]
 
 
 class Publishers:
@@ -182,7 +244,7 @@ class Inbox:
 
 class StatusReporter:
     """Publishes a ServiceStatus on railswitch/service/<name>/<instance>/status every interval_s,
-    with what the service's intake (services/intake.py) received and rejected."""
+    with what the service's intake (services/core/intake.py) received, rejected and ignored (a newer publisher's)."""
 
     def __init__(self, publishers: Publishers, service: str, intake: Intake, interval_s: float = 5.0):
         self.publishers = publishers
@@ -201,7 +263,7 @@ class StatusReporter:
         self._next = now + self.interval_s
         status = ServiceStatus(service=self.service, instance=self.instance, t_ns=time.time_ns(),
                                uptime_s=now - self._started, received=self.intake.received,
-                               rejected=dict(self.intake.rejected),
+                               rejected=dict(self.intake.rejected), ignored_fields=dict(self.intake.ignored),
                                counters=counters)
         self.publishers.put(self.key, status)
 

@@ -24,9 +24,11 @@ COMMANDS: dict[str, str] = {  # name (and module) -> help
     "diagnoser": "diagnose every finished throw on the bus",
     "recorder": "record railswitch/** to an MCAP file",
     "replay": "republish a recording's motor, throw and truth messages",
-    "watch": "live table of diagnoses",
+    "watch": "live table of diagnoses and health",
     "commission": "restart a switch's commissioning after maintenance (its baseline is learnt again)",
-    "demo": "router, simulator, diagnoser and recorder with a live table and summary",
+    "historian": "keep every diagnosis and health message in an SQLite file and answer history queries",
+    "history": "a switch's diagnoses and health over time, from the historians on the bus or a history file",
+    "demo": "router, simulator, diagnoser, recorder and historian with a live table and summary",
 }
 
 

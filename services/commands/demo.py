@@ -1,10 +1,11 @@
 """`railswitch demo`: the whole product on one machine, ending with a summary.
 
-An embedded Zenoh router runs in this process; the diagnoser, recorder and simulator run
-as separate `railswitch` processes connected to it. Every switch is drawn from the population
+An embedded Zenoh router runs in this process; the diagnoser, recorder, historian and simulator
+run as separate `railswitch` processes connected to it. The historian's file lies next to the
+recording (demo.mcap: demo.sqlite), replaced at each run as the recording is. Every switch is drawn from the population
 of real switches (not the model's twin) and throws healthily until commissioned, then with one
 fault mode (cycling through the five), so the summary can hold each decision against the
-injected truth.
+injected truth, and show each switch's health after its last throw.
 """
 from __future__ import annotations
 
@@ -25,13 +26,20 @@ from rich.table import Table
 
 from railswitch.models.estimation import DRIVING_BOLT
 from railswitch.models.switch_diagnosis import COMMISSIONING_THROWS
-from railswitch.schemas import Diagnosis, FaultTruth
-from railswitch.services.adapters.zenoh_bus import BusError, BusOptions, Inbox, configure_logging, open_session, stop_on_signals
+from railswitch.schemas import FAULT_PARAMETERS, Diagnosis, FaultTruth, SwitchHealth
+from railswitch.services.adapters.zenoh_bus import (
+    BusError,
+    BusOptions,
+    Inbox,
+    configure_logging,
+    open_session,
+    stop_on_signals,
+)
 from railswitch.services.adapters.recordings import RecordingPathError, check_writable
 from railswitch.services.core.intake import Intake
 from railswitch.services.adapters.processes import ServiceProcesses, free_loopback_endpoint, wait_ready
 from railswitch.services.commands.options import add_model_argument, bounded
-from railswitch.services.commands.watch import diagnosis_line, diagnosis_table
+from railswitch.services.commands.watch import diagnosis_line, diagnosis_table, health_line, state_markup, to_limit
 
 log = logging.getLogger("railswitch.demo")
 
@@ -46,6 +54,7 @@ NOISE = 0.01
 INTERVAL_S = 10.0
 READY_TIMEOUT_S = 300.0  # a diagnoser on a machine without the compiled-model cache needs a while
 DRAIN_TIMEOUT_S = 60.0
+HEALTH_SETTLE_S = 1.0  # the health messages published right after the last diagnoses arrive within this
 
 
 def fault_onset(throws: int) -> int:
@@ -81,6 +90,19 @@ class Outcome:
 
     diagnoses: list[Diagnosis] = field(default_factory=list)
     truths: dict[str, list[FaultTruth]] = field(default_factory=dict)
+    health: dict[str, SwitchHealth] = field(default_factory=dict)  # each switch's latest
+
+    def take(self, message: Diagnosis | SwitchHealth | FaultTruth, latest: dict[str, Diagnosis]) -> bool:
+        """Keep a message; whether it is one to show (a diagnosis or health message)."""
+        if isinstance(message, FaultTruth):
+            self.truths.setdefault(message.switch_id, []).append(message)
+            return False
+        if isinstance(message, SwitchHealth):
+            self.health[message.switch_id] = message
+        else:
+            self.diagnoses.append(message)
+            latest[message.switch_id] = message
+        return True
 
     def truth_at(self, switch_id: str, t_ns: int) -> FaultTruth | None:
         earlier = [t for t in self.truths.get(switch_id, []) if t.t_ns <= t_ns]
@@ -116,13 +138,27 @@ class Outcome:
                           d.decision, "[green]✓[/]" if ok else "[red]✗[/]")
         return table, correct
 
+    def health_table(self) -> Table:
+        """Each switch's health after its last throw: state, and its worst parameter's level and throws to limit."""
+        table = Table(title="health of each switch after its last throw")
+        for column in ("switch", "throw", "state", "worst parameter level", "worst: throws to limit"):
+            table.add_column(column)
+        for switch_id, health in sorted(self.health.items()):
+            worst = next((p for p in health.parameters if p.name == health.worst), None)
+            level = "" if worst is None else (
+                f"{worst.level:.4g}" + ("" if worst.level_std is None else f" ± {worst.level_std:.2g}")
+                + f" {FAULT_PARAMETERS[worst.name].unit} (limit {worst.limit:g})")
+            table.add_row(switch_id, str(health.throw_index), state_markup(health.state), level, to_limit(health))
+        return table
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--switches", type=bounded(int, 1, 50), default=5)
     parser.add_argument("--throws", type=bounded(int, 2, 1000), default=10,
                         help="throws per switch (the first 8 commission it, when there are more)")
     parser.add_argument("--speed", type=bounded(float, 0.1, 1000.0, "x real time"), default=2.0)
-    parser.add_argument("--out", default="demo.mcap", metavar="F.mcap")
+    parser.add_argument("--out", default="demo.mcap", metavar="F.mcap",
+                        help="the recording; the history file goes next to it (F.sqlite)")
     parser.add_argument("--listen", default=None, metavar="ENDPOINT",
                         help="endpoint of the embedded router (default: a free loopback port)")
     add_model_argument(parser)
@@ -136,6 +172,7 @@ def run(args: argparse.Namespace) -> int:
     except RecordingPathError as error:
         print(f"railswitch: error: {error}", file=sys.stderr)
         return 2
+    history = fresh_history_file(out)
     listen = args.listen or free_loopback_endpoint()
     connect = connect_endpoint(listen)
     with tempfile.TemporaryDirectory(prefix="railswitch-demo-") as scratch, stop_on_signals() as stop:
@@ -150,14 +187,17 @@ def run(args: argparse.Namespace) -> int:
         processes = ServiceProcesses(scratch_dir, own_session=True)
         outcome = Outcome()
         try:
-            inbox = Inbox(router, ["railswitch/*/diagnosis", "railswitch/*/truth"])
-            console.print(f"router on {listen}; starting diagnoser ({args.model}) and recorder ({out})")
+            inbox = Inbox(router, ["railswitch/*/diagnosis", "railswitch/*/health", "railswitch/*/truth"])
+            console.print(f"router on {listen}; starting diagnoser ({args.model}), recorder ({out}) "
+                          f"and historian ({history})")
             processes.start("diagnoser", "--connect", connect, "--model", args.model,
                             "--state", str(scratch_dir / "baselines"))  # each demo commissions its switches afresh
             processes.start("recorder", "--connect", connect, "--out", str(out))
-            wait_ready(router, processes, READY_TIMEOUT_S, stop=stop, diagnoser=1, recorder=1)
+            processes.start("historian", "--connect", connect, "--db", str(history))
+            wait_ready(router, processes, READY_TIMEOUT_S, stop=stop, diagnoser=1, recorder=1, historian=1)
             if not stop.is_set():
-                console.print(f"simulating {args.switches} switches x {args.throws} throws at {args.speed:g}x real time")
+                console.print(f"simulating {args.switches} switches x {args.throws} throws "
+                              f"at {args.speed:g}x real time")
                 simulator = processes.start("simulator", "--connect", connect, "--scenario", str(scenario),
                                             "--speed", str(args.speed))
                 _follow(inbox, outcome, console, simulator, args.switches * args.throws, stop)
@@ -175,19 +215,35 @@ def run(args: argparse.Namespace) -> int:
         console.print(f"{correct} of {len(outcome.diagnoses)} throws decided as expected"
                       + (f"; {missing} throws without a diagnosis" if missing > 0 else "")
                       + ("; stopped early" if stop.is_set() else ""))
-        console.print(f"recording: {out.resolve()}")
+        console.print(outcome.health_table())
+        console.print(f"recording: {out.resolve()}", soft_wrap=True)
+        console.print(f"history: {history.resolve()} (railswitch history sw1 --db {history})", highlight=False,
+                      soft_wrap=True)
         return 130 if stop.is_set() else 0
+
+
+def fresh_history_file(recording: Path) -> Path:
+    """The demo's history file next to its recording, emptied: each demo starts its history afresh."""
+    history = recording.with_suffix(".sqlite")
+    if history == recording:  # --out x.sqlite: the recorder's file is not the historian's
+        history = recording.with_name(f"{recording.name}.history.sqlite")
+    for leftover in (history, Path(f"{history}-wal"), Path(f"{history}-shm")):
+        leftover.unlink(missing_ok=True)
+    return history
 
 
 def _follow(inbox: Inbox, outcome: Outcome, console: Console, simulator: subprocess.Popen, expected: int,
             stop: threading.Event) -> None:
-    """Show diagnoses as they come, until every throw has one (or the simulator failed, or stop)."""
+    """Show diagnoses and health as they come, until every throw has a diagnosis (or the simulator failed, or
+    stop); then a moment more for the health messages that follow the last diagnoses."""
     latest: dict[str, Diagnosis] = {}
-    intake = Intake(log, kinds=("diagnosis", "truth"))
-    drain_deadline = None
+    intake = Intake(log, kinds=("diagnosis", "health", "truth"))
+    drain_deadline = settled = None
     live = console.is_terminal
     with Live(diagnosis_table(latest), console=console, auto_refresh=False) if live else nullcontext() as table:
-        while not stop.is_set() and len(outcome.diagnoses) < expected:
+        while not stop.is_set() and (settled is None or time.monotonic() < settled):
+            if len(outcome.diagnoses) >= expected:
+                settled = settled or time.monotonic() + HEALTH_SETTLE_S
             if simulator.poll() is not None:
                 if simulator.returncode != 0:
                     return
@@ -196,14 +252,10 @@ def _follow(inbox: Inbox, outcome: Outcome, console: Console, simulator: subproc
                     break
             item = inbox.get(0.2)
             message = None if item is None else intake.message(item)
-            if message is None:
+            if message is None or not outcome.take(message, latest):
                 continue
-            if isinstance(message, FaultTruth):
-                outcome.truths.setdefault(message.switch_id, []).append(message)
-                continue
-            outcome.diagnoses.append(message)
-            latest[message.switch_id] = message
             if live:
-                table.update(diagnosis_table(latest), refresh=True)
+                table.update(diagnosis_table(latest, outcome.health), refresh=True)
             else:
-                console.print(diagnosis_line(message), highlight=False)
+                console.print(diagnosis_line(message) if isinstance(message, Diagnosis) else health_line(message),
+                              highlight=False)

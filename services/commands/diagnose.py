@@ -24,7 +24,8 @@ def key_estimate(item: DiagnosedThrow) -> str:
 
 
 def read_messages(path: str) -> list | None:
-    """A recording's messages, damage said in one line; None when the file is not there."""
+    """A recording's messages, with one line on its damage, what was skipped and what this version does not know
+    (a newer writer's fields, counted per name); None when the file is not there."""
     if not Path(path).is_file():
         print(f"railswitch diagnose: {path}: no such file", file=sys.stderr)
         return None

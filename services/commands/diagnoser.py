@@ -1,45 +1,110 @@
 """`railswitch diagnoser`: diagnoses every finished throw on the bus and publishes a Diagnosis.
 
-Zenoh callbacks only queue payloads; one worker thread decodes, cuts throws per switch
-and runs the estimator. `--shard K/N` keeps the switches whose stable hash falls in
-shard K, so several diagnoser processes split a fleet between them.
+Zenoh callbacks only queue payloads; one worker thread decodes, cuts throws per switch and runs the estimator.
+
+Several diagnosers split a fleet between them. By default they are elastic: each finds the others by their
+liveliness tokens and serves the switches that rendezvous hashing over the live set gives it, so one more started
+takes its share and the switches of one that dies (and their throws in flight) go to the others within seconds,
+each switch's state following it on the bus (docs/contracts.md, "Elastic shards"). A lone diagnoser serves every
+switch, as before. `--shard K/N` instead keeps the switches whose stable hash falls in shard K for good, for fixed
+deployments; the two do not share a bus (an elastic diagnoser counts every diagnoser as a member).
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import threading
 import time
 
+import zenoh
+
 from railswitch.services.adapters.baseline_store import BaselineStore
-from railswitch.services.adapters.zenoh_bus import BusOptions, Inbox, Publishers, StatusReporter, declare_service, open_session
+from railswitch.services.adapters.zenoh_bus import (
+    BusOptions,
+    Inbox,
+    LivelinessWatch,
+    Publishers,
+    QueryInbox,
+    StatusReporter,
+    declare_service,
+    instance_name,
+    open_session,
+    query_all,
+)
 from railswitch.services.commands.options import add_model_argument, add_service_arguments, run_service
 from railswitch.services.core.fleet_diagnoser import Diagnoser
 from railswitch.services.core.live_diagnoser import LiveDiagnoser
-from railswitch.services.core.shards import parse_shard
+from railswitch.services.core.membership import Membership
+from railswitch.services.core.shards import FixedShard, parse_shard
 
 log = logging.getLogger("railswitch.diagnoser")
 
+LEASE_MS = 3000  # a diagnoser gone silent (hung, host down) leaves the live set after this; one killed leaves at once
+STATE_QUERY_S = 5.0  # how long a starting diagnoser waits for the others' switch states
+STATE_KEY = "railswitch/*/state"
+INPUT_KEYS = ["railswitch/*/*"]
 
-def run_diagnoser(options: BusOptions, *, model: str, shard: tuple[int, int], stop: threading.Event,
+
+class ElasticPeers:
+    """The bus side of elastic shards: the live diagnosers, the states they hold when this one starts, and this
+    one's answer when the next one starts."""
+
+    def __init__(self, session: zenoh.Session, live: LiveDiagnoser, membership: Membership):
+        self.live = live
+        self.membership = membership
+        self.watch = LivelinessWatch(session, "diagnoser")
+        for member in self.watch.present:
+            membership.join(member)
+        for item in query_all(session, STATE_KEY, STATE_QUERY_S):
+            live.handle(item)
+        self.queries = QueryInbox(session, STATE_KEY)
+
+    def joined(self) -> None:
+        """This one's token is on the bus: it serves the throws that start from now on."""
+        self.membership.join(self.membership.me, time.monotonic())
+
+    def poll(self) -> None:
+        """Apply joins and leaves (rebalancing once if the live set changed) and answer waiting state queries."""
+        changed = False
+        for member, alive, at_s in self.watch.changes():
+            changed |= self.membership.join(member, at_s) if alive else self.membership.leave(member)
+        if changed:
+            log.info("live diagnosers: %d", len(self.membership.members))
+            self.live.rebalance()
+        self.queries.answer(self.live.state_replies)
+
+
+def run_diagnoser(options: BusOptions, *, model: str, shard: tuple[int, int] | None, stop: threading.Event,
                   status_s: float = 5.0, state: str | None = None) -> int:
-    """Diagnose until stop is set; returns the number of diagnoses published."""
-    session = open_session(options, stop=stop)
+    """Diagnose until stop is set (elastic without a shard); returns the number of diagnoses published."""
+    session = open_session(dataclasses.replace(options, lease_ms=LEASE_MS), stop=stop)
     try:
         publishers = Publishers(session)
-        inbox = Inbox(session, ["railswitch/*/*"])  # one subscription keeps samples and events in order
+        # One subscription keeps samples and events in order. A fixed shard queues what arrives while its model
+        # warms up; an elastic diagnoser subscribes once ready, since the live ones serve everything until it joins.
+        inbox = Inbox(session, INPUT_KEYS) if shard is not None else None
         baselines = BaselineStore(model, state)
         diagnoser = Diagnoser(model, on_state=baselines.save, stored_state=baselines.load)
         started = time.monotonic()
         diagnoser.warm_up()
-        log.info("model %s ready in %.1f s; shard %d/%d; baselines in %s", model, time.monotonic() - started, *shard,
+        inbox = inbox or Inbox(session, INPUT_KEYS)  # before the state query: no state falls in between
+        ownership = Membership(instance_name()) if shard is None else FixedShard(shard, instance_name())
+        live = LiveDiagnoser(diagnoser, publishers, ownership, known=baselines.known)
+        peers = ElasticPeers(session, live, ownership) if isinstance(ownership, Membership) else None
+        log.info("model %s ready in %.1f s; %s; baselines in %s", model, time.monotonic() - started,
+                 "shard %d/%d" % shard if shard else f"elastic, {len(ownership.members)} other diagnoser(s)",
                  baselines.folder)
-        live = LiveDiagnoser(diagnoser, publishers, shard, known=baselines.known)
         token = declare_service(session, "diagnoser")  # declared once ready: waiters know throws will be served
+        if peers is not None:
+            peers.joined()
         status = StatusReporter(publishers, "diagnoser", live.intake, status_s)
         for item in inbox.drain(stop):
+            if peers is not None:
+                peers.poll()
             if item is not None:
                 live.handle(item)
+            live.expire()
             status.maybe_publish(live.counters())
         status.maybe_publish(live.counters(), force=True)
         token.undeclare()
@@ -59,8 +124,9 @@ def shard(text: str) -> tuple[int, int]:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_service_arguments(parser, status=True)
     add_model_argument(parser)
-    parser.add_argument("--shard", type=shard, default=(1, 1), metavar="K/N",
-                        help="serve only switches in shard K of N (stable hash of the switch id)")
+    parser.add_argument("--shard", type=shard, default=None, metavar="K/N",
+                        help="serve only switches in shard K of N (stable hash of the switch id), for good; default: "
+                             "elastic, the live diagnosers split the fleet between them")
     parser.add_argument("--state", metavar="DIR", default=None,
                         help="where each switch's commissioned baseline is kept, so a restart resumes it "
                              "(default $RAILSWITCH_STATE, else ~/.local/state/railswitch/baselines)")

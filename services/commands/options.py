@@ -70,15 +70,21 @@ def add_own_arguments(parser: argparse.ArgumentParser) -> None:
                              "lists them)")
     parser.add_argument("--vary", type=bounded(int, 0, 2**32 - 1), default=None, metavar="SEED",
                         help="draw each switch from the population of real switches (switch k: SEED + k)")
+    parser.add_argument("--stroke", type=bounded(float, 2.0, 14.0, "s"), default=None, metavar="S",
+                        help="the point machines' stroke time (default 6.4 s; other machine types are faster or slower)")
+    parser.add_argument("--throw-length", type=bounded(float, 1.0, 30.0, "s"), default=None, metavar="S",
+                        help="when each throw's end event comes (default: the stroke time + 0.6 s, where its "
+                             "reference profile ends)")
 
 
 def scenario_from_args(args: argparse.Namespace, default_throws: int = 1_000_000):
     """The --scenario file, or a scenario built from the simple options (`--vary S` draws switch k with seed S + k)."""
-    from railswitch.schemas.scenario import Scenario, ScenarioError, SwitchPlan, load_scenario
+    from railswitch.schemas.scenario import STROKE_S, Scenario, ScenarioError, SwitchPlan, load_scenario
 
     simple = {"switches": getattr(args, "switches", None), "switch_id": args.switch_id or None, "throws": args.throws,
               "interval": getattr(args, "interval", None), "fault": args.fault or None, "noise": args.noise,
-              "rate": args.rate, "plant": args.plant or None, "vary": args.vary}
+              "rate": args.rate, "plant": args.plant or None, "vary": args.vary, "stroke": args.stroke,
+              "throw_length": args.throw_length}
     if args.scenario:
         given = [f"--{name.replace('_', '-')}" for name, value in simple.items() if value is not None]
         if given:
@@ -93,12 +99,23 @@ def scenario_from_args(args: argparse.Namespace, default_throws: int = 1_000_000
     plans = [SwitchPlan(id=i, throws=args.throws or default_throws, faults=dict(args.fault), plant=dict(args.plant),
                         vary=None if args.vary is None else args.vary + k) for k, i in enumerate(ids)]
     return Scenario(interval_s=getattr(args, "interval", None) or 10.0, rate_hz=args.rate or 50.0,
-                    noise=args.noise or 0.0, seed=args.seed, switches=plans)
+                    noise=args.noise or 0.0, seed=args.seed, switches=plans, stroke_s=args.stroke or STROKE_S,
+                    throw_s=args.throw_length)
 
 
 def switch_id(text: str) -> str:
     try:
         return check_switch_id(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def shard(text: str) -> tuple[int, int]:
+    """--shard K/N: shard K of N of a fleet (services/core/shards.py)."""
+    from railswitch.services.core.shards import parse_shard
+
+    try:
+        return parse_shard(text)
     except ValueError as error:
         raise argparse.ArgumentTypeError(str(error)) from None
 

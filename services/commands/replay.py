@@ -1,6 +1,6 @@
 """`railswitch replay F.mcap`: republish a recording with its original timing, faster, or at once.
 
-By default the plant's side is replayed (motor, throw and truth), so a fresh diagnoser
+By default the plant's side is replayed (motor, throw, truth and record), so a fresh diagnoser
 sees what a live one saw; `--with-diagnosis` adds the recorded diagnoses. Each loop
 shifts times, sample numbers and throw numbers past the previous pass, so subscribers
 see one continuous switch rather than time going backwards.

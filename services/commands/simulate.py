@@ -16,7 +16,7 @@ from rich.progress import Progress
 
 from railswitch.models.plant import Plant
 from railswitch.models.switch import SwitchSimulation
-from railswitch.schemas.scenario import Scenario, ScenarioError, load_scenario
+from railswitch.schemas.scenario import STROKE_S, Scenario, ScenarioError, load_scenario
 from railswitch.services.adapters.recordings import RecordingPathError, RecordingWriter, check_writable
 from railswitch.services.commands.options import add_own_arguments, bounded, fail, fault_assignment, switch_id
 from railswitch.services.core.simulated_fleet import SwitchStream, own_parameters, simulation
@@ -35,13 +35,15 @@ class SimulationSummary:
 
 def simulate_to_mcap(out: str | Path, *, switch_id: str = "sw1", throws: int = 2, faults: dict[str, float] | None = None,
                      noise_rel: float = 0.0, seed: int = 0, rate_hz: float = 50.0, plant: Plant | None = None,
-                     own: dict[str, float] | None = None, progress=None) -> SimulationSummary:
+                     own: dict[str, float] | None = None, stroke_s: float = STROKE_S, end_s: float | None = None,
+                     progress=None) -> SimulationSummary:
     """Simulate `throws` alternating throws back to back and record motor, throw and truth channels.
 
     The file appears only when complete (written beside it, then renamed).
     """
     check_writable(out)
-    sim = SwitchSimulation(plant or Plant(), rate_hz=rate_hz, faults=faults, noise_rel=noise_rel, seed=seed, own=own)
+    sim = SwitchSimulation(plant or Plant(), rate_hz=rate_hz, faults=faults, noise_rel=noise_rel, seed=seed, own=own,
+                           stroke_s=stroke_s, end_s=end_s)
     with RecordingWriter(out) as writer:
         for key, message in switch_messages(switch_id, sim, throws, progress):
             writer.write(key, message)
@@ -113,6 +115,7 @@ def run(args: argparse.Namespace) -> int:
                 own = own_parameters(SwitchPlan(id=args.switch_id, throws=1, plant=dict(args.plant), vary=args.vary))
                 summary = simulate_to_mcap(args.out, switch_id=args.switch_id, throws=args.throws, faults=dict(args.fault),
                                            noise_rel=args.noise, seed=args.seed, rate_hz=args.rate, own=own,
+                                           stroke_s=args.stroke or STROKE_S, end_s=args.throw_length,
                                            progress=advance)
     except RecordingPathError as error:
         return fail(str(error))

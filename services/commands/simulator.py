@@ -1,9 +1,10 @@
 """`railswitch simulator`: simulated switches on the bus, paced in real time or faster.
 
 Each switch computes a whole throw (or idle period) ahead with the high-fidelity plant
-and then streams its samples at the sample rate, so the cost scales with throws, not
-samples. Switches' throws are staggered evenly over the interval. FaultCommands on
-railswitch/<id>/inject act from the next throw on.
+and then streams its samples at the sample rate (or, `--as-records`, sends each throw as
+one record at its end), so the cost scales with throws, not samples. Switches' throws are
+staggered evenly over the interval. FaultCommands on railswitch/<id>/inject act from the
+next throw on.
 """
 from __future__ import annotations
 
@@ -34,13 +35,15 @@ from railswitch.services.core.simulated_fleet import SwitchStream, recorded_thro
 log = logging.getLogger("railswitch.simulator")
 
 LEAD_S = 1.0  # samples at rest before the first throw, so subscribers see the switch settled
+POLL_S = 0.2  # longest wait between looking at commands
 
 
 def run_simulator(options: BusOptions, scenario: Scenario, *, speed: float, stop: threading.Event,
-                  library: list[RecordedThrow] | None = None, status_s: float = 5.0) -> int:
+                  library: list[RecordedThrow] | None = None, status_s: float = 5.0, as_records: bool = False) -> int:
     """Stream the scenario's switches until every plan is done or stop is set; returns messages published.
 
-    With a library of recorded throws the switches replay those instead of running the plant.
+    With a library of recorded throws the switches replay those instead of running the plant. As records, each
+    throw goes out as one ThrowRecord at its end and nothing between throws: a fleet costs its throws only.
     """
     session = open_session(options, stop=stop)
     try:
@@ -59,21 +62,24 @@ def run_simulator(options: BusOptions, scenario: Scenario, *, speed: float, stop
             else:
                 sim = simulation(plant, plan, scenario, k, start_ns)
             streams[plan.id] = SwitchStream.start(plan, sim, interval_s=scenario.interval_s,
-                                                  offset_s=LEAD_S + k * scenario.interval_s / count)
-        log.info("simulating %d switch(es) at %g samples/s, %gx real time", count, scenario.rate_hz, speed)
-        clock = next(iter(streams.values())).sim
-        wall0, tick = time.monotonic(), 0
-        while not stop.is_set() and not all(s.done for s in streams.values()):
-            t_ns = clock.time_ns(tick)
-            for stream in streams.values():
-                for key, message in stream.due(t_ns):
-                    publishers.put(key, message)
+                                                  offset_s=LEAD_S + k * scenario.interval_s / count,
+                                                  as_records=as_records)
+        log.info("simulating %d switch(es) at %g samples/s, %gx real time%s", count, scenario.rate_hz, speed,
+                 ", each throw as one record" if as_records else "")
+        wall0 = time.monotonic()
+        while not stop.is_set():
+            t_ns = min((t for stream in streams.values() if (t := stream.next_ns()) is not None), default=None)
+            if t_ns is None:
+                break  # every plan done
+            wait_s = wall0 + (t_ns - start_ns) * 1e-9 / speed - time.monotonic()
+            if wait_s > 0:
+                stop.wait(min(wait_s, POLL_S))  # records leave long gaps: commands and status go on meanwhile
+            else:
+                for stream in streams.values():
+                    for key, message in stream.due(t_ns):
+                        publishers.put(key, message)
             _apply_commands(inbox, intake, streams)
             status.maybe_publish({"published": publishers.published})
-            tick += 1
-            delay = wall0 + tick / (scenario.rate_hz * speed) - time.monotonic()
-            if delay > 0:
-                stop.wait(delay)
         token.undeclare()
         log.info("published %d messages", publishers.published)
         return publishers.published
@@ -105,6 +111,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rate", type=bounded(float, 1.0, 1000.0, "samples/s"), default=None,
                         help="samples per second (default 50)")
     parser.add_argument("--speed", type=bounded(float, 0.01, 10_000.0, "x real time"), default=1.0)
+    parser.add_argument("--as-records", action="store_true",
+                        help="publish each throw as one record (railswitch/<id>/record) at its end, as trackside units "
+                             "upload them, instead of samples and events; fault commands then act one throw later")
     parser.add_argument("--throws-from", metavar="F.mcap", default=None,
                         help="stream the recorded throws of F (both directions) instead of running the plant: "
                              "hundreds of switches on one core")
@@ -121,5 +130,6 @@ def run(args: argparse.Namespace) -> int:
         except ValueError as error:
             return fail(f"{args.throws_from}: {error}")
     return run_service(lambda options, stop: run_simulator(options, scenario_from_args(args), speed=args.speed,
-                                                           stop=stop, library=library, status_s=args.status_interval),
+                                                           stop=stop, library=library, status_s=args.status_interval,
+                                                           as_records=args.as_records),
                        args)

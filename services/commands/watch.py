@@ -1,7 +1,7 @@
-"""`railswitch watch`: a live table of the latest Diagnosis of each switch.
+"""`railswitch watch`: a live table of the latest Diagnosis and SwitchHealth of each switch.
 
-On a terminal the table redraws in place; otherwise (or with --jsonl) every diagnosis
-is printed as one line as it arrives, so the output can be piped or logged.
+On a terminal the table redraws in place; otherwise every diagnosis and health message is printed
+as one line as it arrives, so the output can be piped or logged (--jsonl: each Diagnosis as JSON).
 """
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from railswitch.schemas import FAULT_PARAMETERS, Diagnosis, key_expr
+from railswitch.schemas import FAULT_PARAMETERS, Diagnosis, SwitchHealth, key_expr
 from railswitch.services.adapters.zenoh_bus import BusOptions, Inbox, open_session
 from railswitch.services.commands import options
 from railswitch.services.core.intake import Intake
@@ -23,6 +23,7 @@ from railswitch.services.core.intake import Intake
 log = logging.getLogger("railswitch.watch")
 
 DECISION_STYLE = {"nominal": "green", "unknown": "yellow"}
+STATE_STYLE = {"ok": "green", "watch": "yellow", "alarm": "bold red"}
 
 
 def key_estimates(diagnosis: Diagnosis) -> str:
@@ -47,48 +48,92 @@ def diagnosis_line(diagnosis: Diagnosis) -> str:
             f"{' - ' + estimates if estimates else ''} ({diagnosis.latency_ms:.0f} ms)")
 
 
-def diagnosis_table(latest: dict[str, Diagnosis], title: str = "railswitch diagnoses") -> Table:
+def to_limit(health: SwitchHealth) -> str:
+    """The worst parameter and the throws left until its limit, with the 5 %-95 % interval."""
+    if health.worst is None:
+        return ""
+    if health.throws_to_limit is None:
+        return f"{health.worst}: not heading for its limit"
+    worst = next((p for p in health.parameters if p.name == health.worst), None)
+    interval = ""
+    if worst is not None and worst.throws_to_limit_low is not None and worst.throws_to_limit_high is not None:
+        interval = f" ({worst.throws_to_limit_low:.0f}–{worst.throws_to_limit_high:.0f})"
+    return f"{health.worst}: {health.throws_to_limit:.0f} throws{interval}"
+
+
+def state_markup(state: str) -> str:
+    return f"[{STATE_STYLE[state]}]{state}[/]"
+
+
+def health_line(health: SwitchHealth) -> str:
+    """One line of plain text for logs and pipes."""
+    worst = to_limit(health)
+    return f"{health.switch_id} health after throw {health.throw_index}: {health.state}{' - ' + worst if worst else ''}"
+
+
+def diagnosis_table(latest: dict[str, Diagnosis], health: dict[str, SwitchHealth] | None = None,
+                    title: str = "railswitch diagnoses") -> Table:
+    """The latest diagnosis of each switch, and its health (state, worst parameter's throws to its limit)."""
+    health = health or {}
     table = Table(title=title, expand=False)
-    for column in ("switch", "throw", "direction", "decision", "key estimates", "latency ms"):
+    for column in ("switch", "throw", "direction", "decision", "key estimates", "latency ms", "health",
+                   "worst: throws to limit"):
         table.add_column(column, justify="right" if column in ("throw", "latency ms") else "left")
-    for switch_id in sorted(latest):
-        d = latest[switch_id]
-        style = DECISION_STYLE.get(d.decision, "bold red")
-        table.add_row(switch_id, str(d.throw_index), d.direction, f"[{style}]{d.decision}[/]", key_estimates(d),
-                      f"{d.latency_ms:.0f}")
+    for switch_id in sorted(latest.keys() | health.keys()):
+        d, h = latest.get(switch_id), health.get(switch_id)
+        cells = ["", "", "", "", ""] if d is None else [
+            str(d.throw_index), d.direction, f"[{DECISION_STYLE.get(d.decision, 'bold red')}]{d.decision}[/]",
+            key_estimates(d), f"{d.latency_ms:.0f}"]
+        table.add_row(switch_id, *cells, "" if h is None else state_markup(h.state), "" if h is None else to_limit(h))
     return table
 
 
 def run_watch(options: BusOptions, *, switch_ids: list[str], count: int | None, duration_s: float | None,
               jsonl: bool, stop: threading.Event) -> int:
-    """Show diagnoses until stop, `count` diagnoses or `duration_s`; returns how many arrived."""
+    """Show diagnoses and health until stop, `count` diagnoses or `duration_s`; returns how many diagnoses arrived."""
     session = open_session(options, stop=stop)
     try:
-        keys = [key_expr(s, "diagnosis") for s in switch_ids] or ["railswitch/*/diagnosis"]
+        keys = [key_expr(s, kind) for s in switch_ids for kind in ("diagnosis", "health")] or [
+            "railswitch/*/diagnosis", "railswitch/*/health"]
         inbox = Inbox(session, keys)
-        intake = Intake(log, kinds=("diagnosis",))  # junk is counted and logged once per kind
+        intake = Intake(log, kinds=("diagnosis", "health"))  # junk is counted and logged once per kind
         console = Console(stderr=False)
         live_table = console.is_terminal and not jsonl
         latest: dict[str, Diagnosis] = {}
+        health: dict[str, SwitchHealth] = {}
         received = 0
         deadline = None if duration_s is None else time.monotonic() + duration_s
-        with Live(diagnosis_table(latest), console=console, auto_refresh=False) if live_table else nullcontext() as live:
+        table = Live(diagnosis_table(latest), console=console, auto_refresh=False) if live_table else nullcontext()
+        with table as live:
             while not stop.is_set() and (count is None or received < count):
                 if deadline is not None and time.monotonic() > deadline:
                     break
                 item = inbox.get(0.2)
-                diagnosis = None if item is None else intake.message(item)
-                if diagnosis is None:
+                message = None if item is None else intake.message(item)
+                if message is None:
                     continue
-                received += 1
-                latest[diagnosis.switch_id] = diagnosis
-                if live_table:
-                    live.update(diagnosis_table(latest), refresh=True)
+                if isinstance(message, SwitchHealth):
+                    health[message.switch_id] = message
                 else:
-                    print(diagnosis.model_dump_json() if jsonl else diagnosis_line(diagnosis), flush=True)
+                    received += 1
+                    latest[message.switch_id] = message
+                if live_table:
+                    live.update(diagnosis_table(latest, health), refresh=True)
+                else:
+                    _print_line(message, jsonl)
         return received
     finally:
         session.close()
+
+
+def _print_line(message: Diagnosis | SwitchHealth, jsonl: bool) -> None:
+    """A diagnosis as JSON (--jsonl) or text; a health message as text (not with --jsonl, whose lines are
+    Diagnosis objects only)."""
+    if isinstance(message, SwitchHealth):
+        if not jsonl:
+            print(health_line(message), flush=True)
+    else:
+        print(message.model_dump_json() if jsonl else diagnosis_line(message), flush=True)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -78,10 +78,17 @@ class Diagnoser:
             stored = model_store.load(self.model)
             params = ReducedParams(bearing_port=port_pairs(self.port or stored.bearing_port))
             reduced = ReducedSwitch(stored.representation, stored.weights, params, rate_hz=MODEL_RATE_HZ)
-            self._estimator = ThrowEstimator(reduced, MachineCode() if self.compiled else None)
+            self._machine_code = MachineCode() if self.compiled else None
+            self._estimator = ThrowEstimator(reduced, self._machine_code)
             self._prior = population(stored.healthy_gains, stored.model_weight)
             self._errors = ErrorModel(**stored.error_model)
         return self._estimator
+
+    @property
+    def compiles(self) -> int:
+        """How many times this diagnoser made its model machine code (once, whatever the throws' lengths and rates)."""
+        machine_code = getattr(self, "_machine_code", None)
+        return machine_code.calls if machine_code is not None else 0
 
     def warm_up(self) -> None:
         """Build (and compile) the estimator before the first throw arrives."""
@@ -158,7 +165,8 @@ def diagnosis_message(model: str, throw: CutThrow, switch: SwitchDiagnoser, outc
     return Diagnosis(switch_id=throw.switch_id, throw_index=throw.start.throw_index, direction=throw.start.direction,
                      t_start_ns=throw.start.t_ns, t_end_ns=end_ns, model=model, decision=outcome.decision,
                      reason=outcome.reason, hypotheses=hypotheses, joint=joint, estimate=estimate,
-                     commissioning=commissioning, latency_ms=latency_ms)
+                     commissioning=commissioning, latency_ms=latency_ms,
+                     signals=list(throw.signals.names) if verdict is not None else [])
 
 
 def _last_time(throw: CutThrow) -> float:

@@ -1,74 +1,246 @@
-"""A live diagnoser's core: received samples and events through the intake and throw cutter into the
-fleet diagnoser, each Diagnosis published on railswitch/<id>/diagnosis."""
+"""A live diagnoser's core: received samples, events and records through the intake and throw cutter into the
+fleet diagnoser; each Diagnosis, SwitchHealth and SwitchState published on the switch's channels.
+
+Which throws it diagnoses is up to its ownership: a fixed shard (services/core/shards.py FixedShard) or the
+elastic membership of the live diagnosers (services/core/membership.py Membership). Elastic, every diagnoser
+cuts every switch's throws, the owner at a throw's end diagnoses it and the others hold it until its Diagnosis is
+seen, taking it over if the owner leaves first (services/core/handover.py). A switch's state goes on the bus after
+every throw, so its next owner resumes it.
+"""
 from __future__ import annotations
 
 import logging
 import time
+from collections import Counter
 from collections.abc import Callable
+from typing import Protocol
 
-from railswitch.schemas import CommissionCommand, key_expr
+from railswitch.schemas import (
+    CommissionCommand,
+    Diagnosis,
+    Message,
+    SwitchState,
+    ThrowEvent,
+    ThrowRecord,
+    encode,
+    key_expr,
+)
 from railswitch.services.adapters.zenoh_bus import Publishers, Received
-from railswitch.services.core.fleet_diagnoser import Diagnoser
+from railswitch.services.core.fleet_diagnoser import DiagnosedThrow, Diagnoser
+from railswitch.services.core.handover import HeldThrow, HeldThrows, StateCache, diagnosis_key
 from railswitch.services.core.intake import Intake
-from railswitch.services.core.shards import in_shard
-from railswitch.services.core.throw_cutter import ThrowCutter
+from railswitch.services.core.records import throw_of_record
+from railswitch.services.core.shards import FixedShard
+from railswitch.services.core.throw_cutter import CutThrow, ThrowCutter
 
 log = logging.getLogger("railswitch.diagnoser")
 
-INPUT_KINDS = ("motor", "throw", "commission")
+INPUT_KINDS = ("motor", "throw", "record", "commission", "diagnosis", "state")
+EXPIRE_EVERY_S = 1.0
+COUNTERS = ("diagnosed", "taken_over", "held_expired", "failed", "commissions")  # in every status, zeros too
+
+
+class Ownership(Protocol):
+    """Who diagnoses a switch's throws: FixedShard or Membership."""
+
+    me: str
+
+    @property
+    def members(self) -> frozenset[str]: ...
+
+    def serves(self, switch_id: str) -> bool: ...
+
+    def owner(self, switch_id: str, since_s: float | None = None) -> str | None: ...
+
+    def is_mine(self, switch_id: str) -> bool: ...
 
 
 class LiveDiagnoser:
-    """Feeds received samples and events through the throw cutter into the diagnoser."""
+    """Feeds received samples, events and records through the throw cutter into the diagnoser."""
 
-    def __init__(self, diagnoser: Diagnoser, publishers: Publishers, shard: tuple[int, int] = (1, 1),
-                 known: Callable[[str], bool] | None = None):
-        """`known(switch_id)`: whether a switch has a stored baseline (a commission command for a switch this
-        diagnoser has neither seen nor stored is refused)."""
+    def __init__(self, diagnoser: Diagnoser, publishers: Publishers | None, ownership: Ownership | None = None,
+                 known: Callable[[str], bool] | None = None, clock: Callable[[], float] = time.monotonic):
+        """The diagnoser's states go on the bus as well as to its own on_state (a BaselineStore on disk), and a
+        switch met for the first time resumes from the latest state on the bus before its own stored_state.
+        `known(switch_id)`: whether a switch has a stored state (a commission command for a switch neither seen nor
+        stored is refused). Without publishers nothing is published; without ownership every switch is served."""
         self.diagnoser = diagnoser
-        self.known = known or (lambda switch_id: False)
+        self._save, self._load = diagnoser.on_state, diagnoser.stored_state
+        diagnoser.on_state, diagnoser.stored_state = self._on_state, self._stored_state
         self.publishers = publishers
-        self.shard = shard
-        self.intake = Intake(log, INPUT_KINDS, self._is_mine)
+        self.ownership = ownership or FixedShard((1, 1), "this diagnoser")
+        self.known = known or (lambda switch_id: False)
+        self.clock = clock
+        self.intake = Intake(log, INPUT_KINDS, self.ownership.serves)
         self.cutter = ThrowCutter(on_problem=lambda switch_id, reason: self.intake.reject(
             reason, key_expr(switch_id, "throw")))
-        self.diagnosed = 0
-        self.commissions = 0
-        self._mine: dict[str, bool] = {}
+        self.states = StateCache(diagnoser.model)
+        self.held = HeldThrows()
+        self.counts: Counter[str] = Counter()  # COUNTERS
+        self.failures: Counter[str] = Counter()  # per exception type
+        self._seen: set[str] = set()  # switches whose throws have been on the bus
+        self._started: dict[str, float] = {}  # arrival of each switch's latest start event
+        self._latest: dict[str, tuple[int, int]] = {}  # per switch: (throw index, end ns) this one last diagnosed
+        self._unpublished: dict[str, dict] = {}  # states handed over by the diagnoser, not yet on the bus
+        self._next_expiry = clock() + EXPIRE_EVERY_S
+
+    @property
+    def diagnosed(self) -> int:
+        return self.counts["diagnosed"]
+
+    @property
+    def commissions(self) -> int:
+        return self.counts["commissions"]
 
     def handle(self, item: Received) -> None:
         message = self.intake.message(item)
-        if message is None:
-            return
-        if isinstance(message, CommissionCommand):
+        if isinstance(message, Diagnosis):
+            if message.model == self.diagnoser.model:
+                self.held.seen(diagnosis_key(message), self.clock())
+        elif isinstance(message, SwitchState):
+            self._state_seen(message)
+        elif isinstance(message, CommissionCommand):
             self._commission(message, item.key)
-            return
+        elif isinstance(message, ThrowRecord):
+            self._seen.add(message.switch_id)
+            self._completed(throw_of_record(message), item.arrived_s, item.arrived_s)
+        elif message is not None:
+            self._cut(message, item.arrived_s)
+
+    def _cut(self, message: Message, arrived_s: float) -> None:
+        switch_id = message.switch_id
+        self._seen.add(switch_id)
+        started_s = self._started.get(switch_id, arrived_s)  # of the throw this message may complete
+        if isinstance(message, ThrowEvent) and message.phase == "start":
+            self._started[switch_id] = arrived_s
         throw = self.cutter.feed(message)
-        if throw is None:
-            return
-        diagnosed = self.diagnoser.diagnose(throw)
-        latency_ms = (time.monotonic() - item.arrived_s) * 1e3  # from the end event's arrival to publication
+        if throw is not None:
+            self._completed(throw, started_s, arrived_s)
+
+    def _completed(self, throw: CutThrow, started_s: float, arrived_s: float) -> None:
+        """A throw's end: its owner (among the diagnosers there when it started) diagnoses it, the others hold it."""
+        owner = self.ownership.owner(throw.switch_id, started_s)
+        if owner == self.ownership.me:
+            self._diagnose(throw, arrived_s)
+        elif owner is not None:
+            self.held.hold(HeldThrow(throw, owner, started_s, arrived_s))
+
+    def rebalance(self) -> None:
+        """After the live set changed: forget the switches no longer this one's (when one comes back it resumes
+        from the latest state on the bus) and take over the held throws whose owner left."""
+        for switch_id in [s for s in self.diagnoser.switches if not self.ownership.is_mine(s)]:
+            del self.diagnoser.switches[switch_id]
+        for held in self.held.orphaned(self.ownership.members):
+            owner = self.ownership.owner(held.throw.switch_id, held.started_s)
+            if owner == self.ownership.me:
+                self.counts["taken_over"] += 1
+                log.info("%s throw %d: taken over from %s", held.throw.switch_id, held.throw.start.throw_index,
+                         held.owner)
+                self._diagnose(held.throw, held.arrived_s)
+            elif owner is not None:
+                self.held.hold(HeldThrow(held.throw, owner, held.started_s, held.arrived_s))
+
+    def _diagnose(self, throw: CutThrow, arrived_s: float) -> None:
+        diagnosed = self._diagnosed(throw)
+        latency_ms = (self.clock() - arrived_s) * 1e3  # from the throw's end arriving to publication
         diagnosis = diagnosed.diagnosis.model_copy(update={"latency_ms": latency_ms})
-        self.publishers.put(key_expr(message.switch_id, "diagnosis"), diagnosis)
+        self._put(key_expr(throw.switch_id, "diagnosis"), diagnosis)
         if diagnosed.health is not None:
-            self.publishers.put(key_expr(message.switch_id, "health"), diagnosed.health)
-        self.diagnosed += 1
-        log.info("%s throw %d %s: %s (%.0f ms)%s", message.switch_id, diagnosis.throw_index, diagnosis.direction,
+            self._put(key_expr(throw.switch_id, "health"), diagnosed.health)
+        self._latest[throw.switch_id] = (diagnosis.throw_index, diagnosis.t_end_ns)
+        self._publish_state(throw.switch_id, diagnosis.throw_index, diagnosis.t_end_ns)
+        self.counts["diagnosed"] += 1
+        log.info("%s throw %d %s: %s (%.0f ms)%s", throw.switch_id, diagnosis.throw_index, diagnosis.direction,
                  diagnosis.decision, latency_ms, f" - {diagnosis.reason}" if diagnosis.reason else "")
 
+    def _diagnosed(self, throw: CutThrow) -> DiagnosedThrow:
+        """The diagnosis, or an unknown one saying why it failed: one throw must not stop a fleet's diagnoser. A
+        switch that could not even be resumed drops the state it was resumed from, so its next throw starts afresh."""
+        try:
+            return self.diagnoser.diagnose(throw)
+        except Exception as error:  # noqa: BLE001 - whatever the estimator or a foreign state raises
+            name = type(error).__name__
+            self.failures[name] += 1
+            self.counts["failed"] += 1
+            if self.failures[name] == 1:
+                log.exception("%s throw %d: diagnosis failed (further %s failures are counted)", throw.switch_id,
+                              throw.start.throw_index, name)
+            if throw.switch_id not in self.diagnoser.switches:
+                self.states.forget(throw.switch_id)
+            return DiagnosedThrow(throw, failed_diagnosis(self.diagnoser.model, throw, f"{name}: {error}"), None)
+
+    def _put(self, key: str, message: Message) -> None:
+        if self.publishers is not None:
+            self.publishers.put(key, message)
+
+    def _on_state(self, switch_id: str, state: dict) -> None:
+        if self._save is not None:
+            self._save(switch_id, state)
+        self._unpublished[switch_id] = state
+
+    def _stored_state(self, switch_id: str) -> dict | None:
+        cached = self.states.get(switch_id)
+        if cached is not None:
+            return cached.state
+        return self._load(switch_id) if self._load is not None else None
+
+    def _publish_state(self, switch_id: str, index: int, t_ns: int) -> None:
+        """The state the diagnoser handed over, after throw `index` that ended at t_ns."""
+        state = self._unpublished.pop(switch_id, None)
+        if state is None:
+            return
+        message = SwitchState(switch_id=switch_id, model=self.diagnoser.model, throw_index=index, t_ns=t_ns,
+                              state=state)
+        self.states.put(message)
+        self._put(key_expr(switch_id, "state"), message)
+
+    def _state_seen(self, state: SwitchState) -> None:
+        """Cache it; a switch held here that another diagnoser has since diagnosed later is dropped, to resume from
+        that state at its next throw."""
+        if not self.states.put(state):
+            return
+        self._seen.add(state.switch_id)
+        latest = self._latest.get(state.switch_id)
+        if state.switch_id in self.diagnoser.switches and (latest is None or state.t_ns > latest[1]):
+            del self.diagnoser.switches[state.switch_id]
+
     def _commission(self, command: CommissionCommand, key: str) -> None:
-        if command.switch_id not in self.diagnoser.switches and not self.known(command.switch_id):
+        switch_id = command.switch_id
+        if not self.ownership.is_mine(switch_id):
+            return  # its owner does it
+        if not (switch_id in self.diagnoser.switches or switch_id in self.states or self.known(switch_id)):
             self.intake.reject("commission: unknown switch", key)
             return
-        self.diagnoser.commission(command.switch_id)
-        self.commissions += 1
-        log.info("%s: commissioning restarted%s", command.switch_id, f" ({command.reason})" if command.reason else "")
+        self.diagnoser.commission(switch_id)
+        cached = self.states.get(switch_id)  # a switch resumed from the bus: its latest throw is the cached state's
+        after = max([self._latest.get(switch_id, (0, 0)), (cached.throw_index, cached.t_ns) if cached else (0, 0)],
+                    key=lambda throw: throw[1])
+        self._publish_state(switch_id, *after)
+        self.counts["commissions"] += 1
+        log.info("%s: commissioning restarted%s", switch_id, f" ({command.reason})" if command.reason else "")
+
+    def expire(self) -> None:
+        """Forget held throws and seen diagnoses older than the grace period (at most once a second)."""
+        now = self.clock()
+        if now >= self._next_expiry:
+            self._next_expiry = now + EXPIRE_EVERY_S
+            self.counts["held_expired"] += self.held.expire(now)
+
+    def state_replies(self) -> list[tuple[str, bytes]]:
+        """The cached states of the switches this one owns, as (key, payload): its answer to a diagnoser starting
+        up (services/commands/diagnoser.py)."""
+        return [(key_expr(s.switch_id, "state"), encode(s)) for s in self.states.values()
+                if self.ownership.is_mine(s.switch_id)]
 
     def counters(self) -> dict[str, int]:
-        return {"diagnosed": self.diagnosed, "switches": sum(self._mine.values()), "commissions": self.commissions}
+        owned = sum(1 for switch_id in self._seen if self.ownership.is_mine(switch_id))
+        counts = {name: self.counts[name] for name in COUNTERS}
+        return {**counts, "switches": owned, "held": len(self.held), "members": len(self.ownership.members)}
 
-    def _is_mine(self, switch_id: str) -> bool:
-        mine = self._mine.get(switch_id)
-        if mine is None:
-            mine = self._mine[switch_id] = in_shard(switch_id, self.shard)
-        return mine
+
+def failed_diagnosis(model: str, throw: CutThrow, why: str) -> Diagnosis:
+    """An unknown Diagnosis for a throw whose diagnosis raised."""
+    end_ns = throw.end.t_ns if throw.end is not None else throw.start.t_ns
+    return Diagnosis(switch_id=throw.switch_id, throw_index=throw.start.throw_index, direction=throw.start.direction,
+                     t_start_ns=throw.start.t_ns, t_end_ns=end_ns, model=model, decision="unknown",
+                     reason=f"diagnosis failed: {why}"[:500], latency_ms=0.0)

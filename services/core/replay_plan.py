@@ -10,7 +10,7 @@ import numpy as np
 from railswitch.schemas import Message, MotorSample
 from railswitch.services.adapters.recordings import RecordedMessage
 
-PLANT_KINDS = ("motor", "throw", "truth")
+PLANT_KINDS = ("motor", "throw", "truth", "record")  # what the plant's side (or its trackside unit) sends
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""Splitting a fleet between diagnoser processes: shard K of N by a stable hash of the switch id."""
+"""Splitting a fleet between diagnoser processes for good: shard K of N by a stable hash of the switch id."""
 from __future__ import annotations
 
 import zlib
@@ -20,3 +20,26 @@ def in_shard(switch_id: str, shard: tuple[int, int]) -> bool:
     """Stable across processes and machines (CRC-32 of the id, not Python's salted hash)."""
     k, n = shard
     return zlib.crc32(switch_id.encode()) % n == k - 1
+
+
+class FixedShard:
+    """Shard K of N as a diagnoser's ownership (services/core/membership.py Membership is the elastic one): the
+    switches of the shard are this instance's for good, the others are not even read."""
+
+    def __init__(self, shard: tuple[int, int], me: str):
+        self.shard = shard
+        self.me = me
+        self.members = frozenset([me])
+        self._mine: dict[str, bool] = {}
+
+    def serves(self, switch_id: str) -> bool:
+        mine = self._mine.get(switch_id)
+        if mine is None:
+            mine = self._mine[switch_id] = in_shard(switch_id, self.shard)
+        return mine
+
+    def owner(self, switch_id: str, since_s: float | None = None) -> str | None:
+        return self.me if self.serves(switch_id) else None
+
+    def is_mine(self, switch_id: str) -> bool:
+        return self.serves(switch_id)

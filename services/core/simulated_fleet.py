@@ -10,12 +10,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from railswitch.models.reference import THROW_DURATION_S, Reference
-from railswitch.models.switch import RecordedThrow, ReplayedSwitch, SwitchSimulation
-from railswitch.schemas import FaultCommand, Message
+from railswitch.models.reference import Reference
+from railswitch.models.signals import MotorSignals
+from railswitch.models.switch import RecordedThrow, ReplayedSwitch, Samples, SwitchSimulation
+from railswitch.schemas import FaultCommand, Message, ThrowRecord
 from railswitch.models.plant import Plant
 from railswitch.models.population import draw_switch
 from railswitch.schemas.scenario import Scenario, SwitchPlan, is_plant_name
+from railswitch.services.core.records import record_messages
 from railswitch.services.core.switch_messages import motor_messages, throw_messages, truth_message
 from railswitch.services.core.throw_cutter import cut_throws
 
@@ -34,23 +36,38 @@ class SwitchStream:
     throws_done: int = 0
     idle_next: bool = False
     finished: bool = False
+    as_records: bool = False  # each throw as one ThrowRecord at its end instead of samples and events
+    rest: MotorSignals | None = None  # the latest sample between throws
 
     @classmethod
-    def start(cls, plan: SwitchPlan, sim: SwitchSimulation | ReplayedSwitch, *, interval_s: float, offset_s: float) -> SwitchStream:
-        stream = cls(plan, sim, interval_s - THROW_DURATION_S, {**plan.faults, **sim.own})
+    def start(cls, plan: SwitchPlan, sim: SwitchSimulation | ReplayedSwitch, *, interval_s: float, offset_s: float,
+              as_records: bool = False) -> SwitchStream:
+        stream = cls(plan, sim, interval_s - sim.end_s, {**plan.faults, **sim.own}, as_records=as_records)
         stream._push([truth_message(plan.id, sim, sim.time_ns(0))])
-        stream._push(motor_messages(plan.id, sim, sim.initial_sample()))
+        stream._at_rest(sim.initial_sample())
         if offset_s > 0:
-            stream._push(motor_messages(plan.id, sim, sim.idle(offset_s)))
+            stream._at_rest(sim.idle(offset_s))
         return stream
 
     def _push(self, messages: Iterable[tuple[str, Message]]) -> None:
         for key, message in messages:
-            self.pending.append((message.t_ns, key, message))
+            self.pending.append((message.t_end_ns if isinstance(message, ThrowRecord) else message.t_ns, key, message))
+
+    def _at_rest(self, samples: Samples) -> None:
+        """Samples between throws: streamed, or (records) only the last kept, as the next record's first."""
+        self.rest = samples.signals[[-1]]  # a copy: a view would keep the whole idle period in memory
+        if not self.as_records:
+            self._push(motor_messages(self.plan.id, self.sim, samples))
 
     @property
     def done(self) -> bool:
         return self.finished and not self.pending
+
+    def next_ns(self) -> int | None:
+        """When this switch's next message is due (computing ahead when needed); None once it is done."""
+        while not self.finished and not self.pending:
+            self._extend()
+        return self.pending[0][0] if self.pending else None
 
     def due(self, t_ns: int) -> list[tuple[str, Message]]:
         """Messages with a time up to t_ns, computing the next throw or idle period when needed."""
@@ -65,7 +82,7 @@ class SwitchStream:
     def _extend(self) -> None:
         if self.idle_next:
             self.idle_next = False
-            self._push(motor_messages(self.plan.id, self.sim, self.sim.idle(self.idle_s)))
+            self._at_rest(self.sim.idle(self.idle_s))
         elif self.throws_done < self.plan.throws:
             try:
                 self.settings = self.plan.settings_before(self.throws_done, self.settings, self.sim.own)
@@ -76,7 +93,8 @@ class SwitchStream:
             self.sim.set_own(own)
             throw = self.sim.throw()
             log.info("%s throw %d %s, faults %s", self.plan.id, throw.index, throw.direction, faults or "none")
-            self._push(throw_messages(self.plan.id, self.sim, throw))
+            self._push(record_messages(self.plan.id, self.sim, throw, self.rest) if self.as_records
+                       else throw_messages(self.plan.id, self.sim, throw))
             self.throws_done += 1
             self.idle_next = self.throws_done < self.plan.throws
         else:
@@ -106,7 +124,8 @@ def own_parameters(plan: SwitchPlan) -> dict[str, float]:
 def simulation(plant: Plant, plan: SwitchPlan, scenario: Scenario, k: int, start_ns: int = 0) -> SwitchSimulation:
     """The plant simulation of the k-th switch of a scenario."""
     return SwitchSimulation(plant, rate_hz=scenario.rate_hz, faults=plan.faults, noise_rel=scenario.noise,
-                            seed=scenario.seed + k, start_ns=start_ns, own=own_parameters(plan))
+                            seed=scenario.seed + k, start_ns=start_ns, own=own_parameters(plan),
+                            stroke_s=scenario.stroke_s, end_s=scenario.throw_s)
 
 
 def recorded_throws(messages: Iterable[Message]) -> list[RecordedThrow]:

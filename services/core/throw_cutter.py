@@ -106,8 +106,14 @@ def _cut(current: _OpenThrow, end: ThrowEvent | None) -> CutThrow:
     return CutThrow(
         switch_id=current.start.switch_id, start=current.start, end=end,
         t_s=np.array([(s.t_ns - t0) * 1e-9 for s in samples]),
-        signals=MotorSignals(*(np.array([getattr(s, name) for s in samples]) for name in SIGNAL_NAMES)),
-        missing_samples=missing, truth=current.truth)
+        signals=_signals(samples), missing_samples=missing, truth=current.truth)
+
+
+def _signals(samples: list[MotorSample]) -> MotorSignals:
+    """The throw's signals: the current, and angle and velocity where every sample carries them (a unit that
+    logs them only now and then is taken as current-only rather than as one with gaps)."""
+    logged = [name for name in SIGNAL_NAMES if all(getattr(s, name) is not None for s in samples)]
+    return MotorSignals(**{name: np.array([getattr(s, name) for s in samples], dtype=float) for name in logged})
 
 
 def cut_throws(messages: Iterable[Message]) -> Iterator[CutThrow]:

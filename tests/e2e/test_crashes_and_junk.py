@@ -15,14 +15,23 @@ from railswitch.schemas import (
     CHANNEL_MODELS,
     MotorSample,
     ServiceStatus,
-    ThrowEvent,
     decode,
     encode,
     key_expr,
 )
 from railswitch.services.adapters.recordings import load_recording
 from railswitch.services.adapters.processes import free_loopback_endpoint
-from tests.live import ROOT, DiagnosisCollector, ServiceProcesses, client, live_bus, throw_event, wait_for, wait_ready
+from tests.live import (
+    ROOT,
+    DiagnosisCollector,
+    ServiceProcesses,
+    ThrowWatcher,
+    client,
+    live_bus,
+    throw_event,
+    wait_for,
+    wait_ready,
+)
 
 KINDS = list(CHANNEL_MODELS)
 
@@ -93,24 +102,6 @@ def test_junk_on_every_key_is_counted_and_the_valid_stream_still_diagnosed(tmp_p
 
 
 # -- crashes and restarts -------------------------------------------------------------------------
-class ThrowWatcher:
-    """The throw events and motor sample times of the bus, as the test's own subscriber sees them."""
-
-    def __init__(self, session):
-        self.starts: list[int] = []
-        self.last_sample_ns = 0
-        self._subscribers = [session.declare_subscriber("railswitch/*/throw", self._throw),
-                             session.declare_subscriber("railswitch/*/motor", self._motor)]
-
-    def _throw(self, sample) -> None:
-        event = decode(ThrowEvent, sample.payload.to_bytes())
-        if event.phase == "start":
-            self.starts.append(event.throw_index)
-
-    def _motor(self, sample) -> None:
-        self.last_sample_ns = max(self.last_sample_ns, decode(MotorSample, sample.payload.to_bytes()).t_ns)
-
-
 def test_a_diagnoser_killed_during_a_throw_and_restarted_diagnoses_the_next_full_throw(tmp_path):
     with live_bus(tmp_path) as (services, endpoint, session, collector):
         throws = ThrowWatcher(session)

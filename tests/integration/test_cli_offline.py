@@ -121,8 +121,9 @@ def test_report_of_one_recording_draws_the_fits_and_the_estimates_over_throws(re
     result = run("report", str(recording), "--out", str(tmp_path / "fits"))
     assert result.returncode == 0, result.stderr
     names = sorted(p.name for p in (tmp_path / "fits").glob("*.png"))
-    assert names == ["estimates.png", "pm-7_throw000_left_to_right.png", "pm-7_throw001_right_to_left.png"]
-    assert (tmp_path / "fits" / "estimates.png").stat().st_size > 20_000
+    assert names == ["pm-7_estimates.png", "pm-7_health.png", "pm-7_throw000_left_to_right.png",
+                     "pm-7_throw001_right_to_left.png"]  # estimates and health: one picture per switch
+    assert (tmp_path / "fits" / "pm-7_estimates.png").stat().st_size > 20_000
 
 
 def test_report_on_a_file_that_is_not_a_recording_fails_in_one_line(tmp_path):

@@ -70,6 +70,15 @@ def test_a_left_bolt_on_a_switch_with_dry_chairs_is_found_within_ten_percent(dia
     assert diagnoses[-1].estimate.params["left_bolt_offset"] == pytest.approx(0.06, rel=0.10)
 
 
+def test_missing_bearings_on_a_commissioned_switch_with_dry_chairs_are_found_within_ten_percent(diagnoser, plant):
+    """Once commissioned, the switch's own chairs are known: the bearing friction is no longer confused with them."""
+    dry = {"rail.chair_friction_coefficient": 0.03}
+    changes = {COMMISSIONING: ({"bearing_friction": 5000.0}, None)}
+    diagnoses = run_switch(diagnoser, plant, "bearing", own=dry, changes=changes, throws=COMMISSIONING + 2)
+    assert diagnoses[-1].decision == "missing_bearing"
+    assert diagnoses[-1].estimate.params["bearing_friction"] == pytest.approx(5000.0, rel=0.10)
+
+
 def test_a_right_to_left_throw_does_not_pretend_to_see_the_left_bolt(diagnoser, plant):
     changes = {COMMISSIONING: ({"left_bolt_offset": 0.05}, None)}
     diagnoses = run_switch(diagnoser, plant, "blind", own={}, changes=changes, throws=COMMISSIONING + 2)

@@ -73,3 +73,28 @@ def test_a_throw_without_an_end_is_emitted_incomplete_when_the_next_starts():
     cutter.feed(motor_sample(1, 20_000_000))
     abandoned = cutter.feed(throw_event("start", 1, 10**9))
     assert abandoned is not None and abandoned.end is None and abandoned.start.throw_index == 0
+
+
+def test_a_newer_publishers_fields_are_accepted_counted_per_kind_and_name_and_logged_once(caplog):
+    import logging
+
+    intake = Intake(logging.getLogger("test"))
+    newer = {"unit_serial": "PM-4711", "contract": 2}
+    for seq in range(3):
+        payload = json.dumps(json.loads(encode(motor_sample(seq, 10 + seq))) | newer).encode()
+        assert intake.message(Received(key_expr("sw1", "motor"), payload, 0.0)) is not None
+    start = json.dumps(json.loads(encode(throw_event("start", 0, 10))) | {"unit_serial": "PM-4711"}).encode()
+    assert intake.message(Received(key_expr("sw1", "throw"), start, 0.0)) is not None
+    assert intake.ignored == {"motor: unit_serial": 3, "motor: contract=2": 3, "throw: unit_serial": 1}
+    assert not intake.rejected
+    logged = [r.getMessage() for r in caplog.records if "does not know" in r.getMessage()]
+    assert len(logged) == 3 and any(line.endswith("motor: contract=2 (further ones are counted)") for line in logged)
+
+
+def test_a_refused_payload_counts_as_rejected_not_as_ignored():
+    import logging
+
+    intake = Intake(logging.getLogger("test"))
+    payload = json.dumps(json.loads(encode(motor_sample(0, 10, "sw2"))) | {"unit_serial": "PM-4711"}).encode()
+    assert intake.message(Received(key_expr("sw1", "motor"), payload, 0.0)) is None
+    assert intake.rejected == {"motor: switch_id differs from the key": 1} and not intake.ignored

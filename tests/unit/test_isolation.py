@@ -1,7 +1,7 @@
 """Fault detection by F test on the effective number of residuals."""
 import numpy as np
 
-from railswitch.models.isolation import effective_samples
+from railswitch.models.estimation import effective_samples
 
 
 def test_effective_sample_count_is_the_count_for_white_noise_and_small_for_smooth_error():

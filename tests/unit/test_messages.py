@@ -9,12 +9,14 @@ from hypothesis import strategies as st
 from pydantic import BaseModel, ValidationError
 
 from railswitch.schemas import (
-    decode_counted,
     CHANNEL_MODELS,
+    CONTRACT_VERSION,
     DECISIONS,
     FAULT_PARAMETERS,
     MODE_PARAMETERS,
+    Commissioning,
     Diagnosis,
+    FaultEstimate,
     FaultCommand,
     FaultTruth,
     Hypothesis,
@@ -23,6 +25,7 @@ from railswitch.schemas import (
     ThrowEvent,
     check_fault_value,
     decode,
+    decode_counted,
     encode,
     json_schema,
     key_expr,
@@ -240,6 +243,74 @@ def test_a_current_only_sample_and_a_contract_version_are_accepted() -> None:
         decode(MotorSample, b'{"switch_id": "sw1", "seq": 3, "t_ns": 5, "current_a": 1.5, "contract": 0}')
 
 
+NESTED = Diagnosis.model_validate(DIAGNOSIS.model_dump() | {
+    "estimate": FaultEstimate(mode="left_bolt", params={"left_bolt_offset": 0.05}, throws=2, since_throw=1),
+    "commissioning": Commissioning(state="provisional", throws={"left_to_right": 1}, needed=4)})
+
+
+VALUE_MAPS = ("params", "std", "nuisance", "throws", "plant")  # objects of values, not nested messages
+EXTRA = {"unit_serial": "PM-4711"}
+
+
+def with_extras(payload: dict) -> dict:
+    """payload with a newer publisher's field in it and in every message nested in it (alone or in a list)."""
+    def nested(key: str, value: object) -> object:
+        if isinstance(value, dict) and key not in VALUE_MAPS:
+            return with_extras(value)
+        if isinstance(value, list):
+            return [with_extras(item) if isinstance(item, dict) else item for item in value]
+        return value
+
+    return {**EXTRA, **{key: nested(key, value) for key, value in payload.items()}}
+
+
+@pytest.mark.parametrize(
+    ("msg", "nested"),
+    [*((m, []) for m in EXAMPLES if not isinstance(m, Diagnosis)),
+     (DIAGNOSIS, ["hypotheses", "joint"]),
+     (NESTED, ["commissioning", "estimate", "hypotheses", "joint"])],
+    ids=lambda v: type(v).__name__ if isinstance(v, BaseModel) else "-".join(v) or "top-level",
+)
+def test_extra_fields_at_any_depth_are_ignored_and_named_once_by_their_dotted_path(msg, nested) -> None:
+    """Two hypotheses carrying the field name it once: the count is of payloads, not of objects in them."""
+    message, unknown = decode_counted(type(msg), json.dumps(with_extras(json.loads(encode(msg)))).encode())
+    assert message == msg
+    assert unknown == [*(f"{name}.unit_serial" for name in nested), "unit_serial"]
+
+
+def test_a_newer_contract_is_read_as_far_as_known_and_named() -> None:
+    payload = json.dumps(MOTOR.model_dump() | {"contract": CONTRACT_VERSION + 1, "torque_nm": 1.0}).encode()
+    message, unknown = decode_counted(MotorSample, payload)
+    assert message.current_a == MOTOR.current_a and message.contract == CONTRACT_VERSION + 1
+    assert unknown == ["torque_nm", f"contract={CONTRACT_VERSION + 1}"]
+    assert decode_counted(MotorSample, encode(MOTOR)) == (MOTOR, [])
+
+
+@pytest.mark.parametrize(
+    ("model_cls", "payload", "reason"),
+    [
+        (MotorSample, MOTOR.model_dump() | {"current_a": "high"}, "current_a: Input should be a valid number"),
+        (MotorSample, {"switch_id": "sw-1", "seq": 1}, "t_ns: Field required"),
+        (MotorSample, MOTOR.model_dump() | {"current_a": 1e12}, "current_a: Input should be less than or equal"),
+        (ThrowEvent, THROW.model_dump() | {"direction": "up"}, "direction: Input should be 'left_to_right'"),
+        (Diagnosis, DIAGNOSIS.model_dump() | {"hypotheses": [{"mode": "nominal", "params": {}, "mse": -1.0}]},
+         "hypotheses.0.mse: Input should be greater than or equal to 0"),
+        (Diagnosis, NESTED.model_dump() | {"estimate": {"mode": "left_bolt", "params": {}, "throws": 0,
+                                                        "since_throw": 0}}, "estimate.throws: Input should be"),
+        (MotorSample, MOTOR.model_dump() | {"contract": 1001}, "contract: Input should be less than or equal"),
+    ],
+)
+def test_extra_fields_do_not_excuse_a_wrong_type_a_missing_field_or_an_absurd_value(model_cls, payload, reason):
+    with pytest.raises(MessageError, match=f"^validation: {reason}"):
+        decode_counted(model_cls, json.dumps(with_extras(payload)).encode())
+
+
+def test_a_non_finite_value_beside_extra_fields_is_refused() -> None:
+    payload = json.dumps(with_extras(MOTOR.model_dump())).replace('"current_a": 2.5', '"current_a": NaN')
+    with pytest.raises(MessageError, match="validation: current_a: Input should be a finite number"):
+        decode_counted(MotorSample, payload.encode())
+
+
 @pytest.mark.parametrize("model_cls", CHANNEL_MODELS.values(), ids=lambda c: c.__name__)
 def test_json_schema_is_deterministic_json_naming_every_field(
     model_cls: type[BaseModel],
@@ -328,6 +399,6 @@ def test_absurd_motor_values_are_rejected(field: str, value: float) -> None:
 def test_arbitrary_bytes_decode_to_a_model_or_message_error(data: bytes) -> None:
     for model_cls in CHANNEL_MODELS.values():
         try:
-            assert isinstance(decode(model_cls, data), model_cls)
+            assert isinstance(decode_counted(model_cls, data)[0], model_cls)
         except MessageError:
             pass

@@ -34,7 +34,7 @@ def test_scenario_rejects_degradation_that_leaves_the_fault_range():
 
 
 @pytest.mark.parametrize("text, message", [
-    ("interval_s = 5\n[[switches]]\nid='a'\nthrows=1", "interval_s: Input should be greater than 7"),
+    ("interval_s = 5\n[[switches]]\nid='a'\nthrows=1", "interval_s 5 must exceed a throw's length"),
     ("[[switches]]\nid='a b'\nthrows=1", "switches.0.id"),
     ("[[switches]]\nid='a'\nthrows=1\nfaults={left_bolt_offset=0.5}", "left_bolt_offset=0.5 is outside"),
     ("[[switches]]\nid='a'\nthrows=1\n[[switches]]\nid='a'\nthrows=2", "switch ids repeat"),

@@ -1,0 +1,142 @@
+"""`railswitch historian --db F.sqlite`: every diagnosis and health message of its switches into an SQLite
+file, and the history of a switch to any Zenoh client that asks (a get on railswitch/<id>/history).
+
+Zenoh callbacks only queue; the main thread writes whatever is queued as one transaction, and a second
+thread answers queries from its own connection to the file. `--shard K/N` keeps the switches of shard K,
+as the diagnoser does; one get with consolidation off gathers every shard's answer. A damaged file stops
+the historian before it joins the bus, saying how many rows can be salvaged.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import queue
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import zenoh
+
+from railswitch.schemas import HISTORY_KEYS, history_key
+from railswitch.services.adapters.history_db import HistoryDb
+from railswitch.services.adapters.zenoh_bus import (
+    BusOptions,
+    Inbox,
+    Publishers,
+    Received,
+    StatusReporter,
+    declare_service,
+    instance_name,
+    open_session,
+)
+from railswitch.services.commands.options import add_service_arguments, bounded, run_service, shard
+from railswitch.services.core.historian import Historian, HistoryAnswers, Retention
+from railswitch.services.core.shards import FixedShard
+
+log = logging.getLogger("railswitch.historian")
+
+MAX_BATCH = 5000  # rows per transaction at most: a backlog is written in steps, queries are not held up long
+POLL_S = 0.2
+
+
+def batches(inbox: Inbox, stop: threading.Event) -> Iterator[list[Received]]:
+    """Whatever is queued, as one batch: the first item waited for (an empty batch after POLL_S without one),
+    the rest taken without waiting. After stop, what is still queued comes out before the iterator ends."""
+    for item in inbox.drain(stop, POLL_S):
+        batch = [] if item is None else [item]
+        while batch and len(batch) < MAX_BATCH and (item := inbox.get(0.0)) is not None:
+            batch.append(item)
+        yield batch
+
+
+class QueryServer:
+    """Answers history queries in a thread of its own with its own connection to the file; the queryable's
+    callback only queues the query."""
+
+    def __init__(self, session: zenoh.Session, answers: HistoryAnswers):
+        self.answers = answers
+        self._closed = threading.Event()
+        self._queries: queue.SimpleQueue[zenoh.Query] = queue.SimpleQueue()
+        self._queryable = session.declare_queryable(HISTORY_KEYS, self._queries.put)
+        self._thread = threading.Thread(target=self._serve, name="history-queries", daemon=True)
+        self._thread.start()
+
+    def _serve(self) -> None:
+        while not self._closed.is_set():
+            try:
+                query = self._queries.get(timeout=POLL_S)
+            except queue.Empty:
+                continue
+            with query:  # leaving it sends the final reply: the client's get ends
+                try:
+                    self.respond(query)
+                except zenoh.ZError as error:  # the client went away, say: the next query is answered all the same
+                    log.warning("could not answer a history query on %s: %s", query.key_expr, error)
+
+    def respond(self, query: zenoh.Query) -> None:
+        key = str(query.key_expr)
+        asked = zenoh.KeyExpr(key)
+        try:
+            answer = self.answers.answer(key, dict(query.parameters),
+                                         lambda switch_id: asked.intersects(zenoh.KeyExpr(history_key(switch_id))))
+        except OSError as error:  # the file could not be read: say so to the client, keep serving
+            log.error("%s", error)
+            query.reply_err(str(error).encode(), encoding=zenoh.Encoding.TEXT_PLAIN)
+            return
+        if answer.error is not None:
+            query.reply_err(answer.error.encode(), encoding=zenoh.Encoding.TEXT_PLAIN)
+        for reply_key, payload in answer.replies:
+            query.reply(reply_key, payload, encoding=zenoh.Encoding.APPLICATION_JSON)
+
+    def __enter__(self) -> QueryServer:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        """No new queries; the one being answered is finished first."""
+        self._queryable.undeclare()
+        self._closed.set()
+        self._thread.join()
+
+
+def run_historian(options: BusOptions, db_path: str | Path, *, is_mine: Callable[[str], bool],
+                  stop: threading.Event, keep_days: float | None = None, status_s: float = 5.0) -> int:
+    """Keep history until stop is set; returns the rows written. The file is checked before joining the bus."""
+    with HistoryDb(db_path) as db, HistoryDb(db_path, check=False) as query_db:
+        historian = Historian(db, is_mine)
+        retention = Retention(keep_days)
+        session = open_session(options, stop=stop)
+        try:
+            inbox = Inbox(session, ["railswitch/*/diagnosis", "railswitch/*/health"])
+            with QueryServer(session, HistoryAnswers(query_db, is_mine, instance_name())) as server:
+                token = declare_service(session, "historian")  # declared once queries are answered
+                status = StatusReporter(Publishers(session), "historian", historian.intake, status_s)
+                log.info("history in %s (%d rows); answering %s", db.path, db.count(), HISTORY_KEYS)
+                for batch in batches(inbox, stop):
+                    historian.write(batch)
+                    if retention.due(time.monotonic()):
+                        historian.prune(time.time_ns(), keep_days)
+                    status.maybe_publish(historian.counters() | server.answers.counters())
+                status.maybe_publish(historian.counters() | server.answers.counters(), force=True)
+                token.undeclare()
+        finally:
+            session.close()
+        log.info("wrote %d rows; rejected %s", historian.written, dict(historian.intake.rejected) or "nothing")
+        return historian.written
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_service_arguments(parser, status=True)
+    parser.add_argument("--db", required=True, metavar="F.sqlite",
+                        help="the history file (created if missing; a restarted historian goes on with it)")
+    parser.add_argument("--shard", type=shard, default=(1, 1), metavar="K/N",
+                        help="keep only switches in shard K of N (stable hash of the switch id, as the diagnoser)")
+    parser.add_argument("--keep-days", type=bounded(float, 0.01, 36_500.0, "days"), default=None, metavar="D",
+                        help="delete rows older than D days (by each message's time), at start-up and hourly")
+
+
+def run(args: argparse.Namespace) -> int:
+    shard = FixedShard(args.shard, instance_name())
+    return run_service(lambda options, stop: run_historian(
+        options, args.db, is_mine=shard.is_mine, stop=stop, keep_days=args.keep_days, status_s=args.status_interval),
+        args)

@@ -1,0 +1,226 @@
+"""The historian's core: diagnoses and health messages into the history file batch by batch, old rows
+pruned, and history queries answered from the file.
+
+Writing and answering each hold their own connection to the file (SQLite's WAL lets queries read while a
+batch is written), so the service runs them in two threads. Which switches are this historian's is a
+predicate handed in (a static shard today, elastic membership later); a query for a switch is answered by
+whichever historian holds rows of it, so shards that changed hands still answer for what they stored.
+"""
+from __future__ import annotations
+
+import json
+import logging
+from collections import Counter
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+from railswitch.schemas import (
+    CONTRACT_VERSION,
+    HISTORY_KINDS,
+    Diagnosis,
+    HistoryQuery,
+    HistoryReply,
+    Message,
+    check_switch_id,
+    encode,
+    history_key,
+)
+from railswitch.schemas.history import MAX_TIME_NS
+from railswitch.services.adapters.history_db import HistoryDb, HistoryDbError, HistoryRow
+from railswitch.services.adapters.zenoh_bus import Received
+from railswitch.services.core.intake import Intake
+
+log = logging.getLogger("railswitch.historian")
+
+MAX_PENDING = 100_000  # rows kept in memory while the file cannot be written (a full disk), oldest dropped first
+DAY_NS = 86_400 * 10**9
+
+
+def message_time(message: Message) -> int:
+    """The time a message is kept and looked up by: a diagnosis its throw's end, a health message its t_ns."""
+    return message.t_end_ns if isinstance(message, Diagnosis) else message.t_ns
+
+
+class Historian:
+    """Turns received payloads into history rows of this historian's switches and writes each batch in one
+    transaction. Junk is counted per reason by the intake and never stored."""
+
+    def __init__(self, db: HistoryDb, is_mine: Callable[[str], bool]):
+        self.db = db
+        self.intake = Intake(log, HISTORY_KINDS, is_mine)
+        self.written = 0
+        self.duplicates = 0
+        self.batches = 0
+        self.pruned = 0
+        self.dropped = 0
+        self.write_failures = 0
+        self._pending: list[HistoryRow] = []
+
+    def write(self, batch: Sequence[Received]) -> int:
+        """Store the valid messages of a batch (and any left over from a failed write); returns rows written.
+
+        A file that cannot be written (a full disk) keeps the rows in memory and is tried again with the next
+        batch: the service goes on, and nothing is lost unless MAX_PENDING rows pile up."""
+        rows = self._pending + [row for item in batch if (row := self.row(item)) is not None]
+        if not rows:
+            return 0
+        try:
+            new = self.db.write(rows)
+        except HistoryDbError as error:
+            return self._keep(rows, str(error))
+        if self._pending:
+            log.info("the history file takes rows again; %d kept in memory are written", len(self._pending))
+        self._pending = []
+        self.batches += 1
+        self.written += new
+        self.duplicates += len(rows) - new
+        return new
+
+    def _keep(self, rows: list[HistoryRow], reason: str) -> int:
+        if self.write_failures == 0 or not self._pending:
+            log.error("cannot write the history file (%s); keeping %d rows in memory and retrying", reason, len(rows))
+        self.write_failures += 1
+        self.dropped += max(0, len(rows) - MAX_PENDING)
+        self._pending = rows[-MAX_PENDING:]
+        return 0
+
+    def row(self, item: Received) -> HistoryRow | None:
+        """The history row of a received payload, or None (counted when it was junk)."""
+        message = self.intake.message(item)
+        if message is None:
+            return None
+        kind = item.key.rsplit("/", 1)[1]
+        t_ns = message_time(message)
+        if t_ns > MAX_TIME_NS or message.throw_index > MAX_TIME_NS:
+            return self.intake.reject(f"{kind}: time or throw index beyond 64 bits", item.key)
+        return HistoryRow(message.switch_id, kind, message.throw_index, t_ns, encode(message).decode())
+
+    def prune(self, now_ns: int, keep_days: float) -> int:
+        """Delete the rows older than keep_days before now_ns (by each message's own time)."""
+        try:
+            deleted = self.db.prune(now_ns - int(keep_days * DAY_NS))
+        except HistoryDbError as error:
+            log.error("%s; trying again at the next pruning", error)
+            return 0
+        self.pruned += deleted
+        if deleted:
+            log.info("pruned %d rows older than %g days", deleted, keep_days)
+        return deleted
+
+    def counters(self) -> dict[str, int]:
+        return {"written": self.written, "duplicates": self.duplicates, "batches": self.batches,
+                "pruned": self.pruned, "pending": len(self._pending), "dropped": self.dropped,
+                "write_failures": self.write_failures}
+
+
+@dataclass
+class Retention:
+    """When to prune: at start-up and every `every_s` seconds after, if rows are kept for `keep_days` only."""
+
+    keep_days: float | None
+    every_s: float = 3600.0
+    _next_s: float = float("-inf")
+
+    def due(self, now_s: float) -> bool:
+        if self.keep_days is None or now_s < self._next_s:
+            return False
+        self._next_s = now_s + self.every_s
+        return True
+
+
+@dataclass(frozen=True)
+class Answer:
+    """What a history query gets: one reply (key, JSON) per switch, or an error naming the problem."""
+
+    replies: list[tuple[str, bytes]] = field(default_factory=list)
+    error: str | None = None
+
+
+def switch_in_key(key: str) -> str | None:
+    """The switch a concrete key railswitch/<id>/history names; None for a key with wildcards (or another
+    form), which asks for every switch it matches. ValueError for a concrete chunk that is no switch id."""
+    parts = key.split("/")
+    if len(parts) != 3 or any(c in key for c in "*$"):
+        return None
+    return check_switch_id(parts[1])
+
+
+def reply_payload(switch_id: str, historian: str, diagnoses: list[str], health: list[str], truncated: bool) -> bytes:
+    """A HistoryReply's JSON spliced from stored payloads: each was encoded from a validated message when it
+    was written, so decoding and encoding it again would only cost time (benchmarks/historian.py)."""
+    head = json.dumps({"contract": CONTRACT_VERSION, "switch_id": switch_id, "historian": historian,
+                       "truncated": truncated}, separators=(",", ":"))
+    return f'{head[:-1]},"diagnoses":[{",".join(diagnoses)}],"health":[{",".join(health)}]}}'.encode()
+
+
+class HistoryAnswers:
+    """Answers history queries from its own connection to the file. Bad queries are counted per reason and
+    logged once per reason."""
+
+    def __init__(self, db: HistoryDb, is_mine: Callable[[str], bool], historian: str):
+        self.db = db
+        self.is_mine = is_mine
+        self.historian = historian
+        self.answered = 0
+        self.refused: Counter[str] = Counter()
+
+    def answer(self, key: str, parameters: Mapping[str, str], matches: Callable[[str], bool]) -> Answer:
+        """The answer to a query on `key` (matches(switch_id): whether a switch's history key intersects it).
+
+        A concrete key this historian holds no rows of is refused as unknown only if the switch is its own;
+        otherwise another historian answers, and this one stays silent (no replies, no error)."""
+        try:
+            query = HistoryQuery.from_parameters(parameters)
+        except ValueError as error:
+            return self._refuse("parameters", str(error), key)
+        try:
+            switch_id = switch_in_key(key)
+        except ValueError as error:
+            return self._refuse("switch id", str(error), key)
+        return self.answer_query(query, switch_id, matches)
+
+    def answer_query(self, query: HistoryQuery, switch_id: str | None,
+                     matches: Callable[[str], bool] = lambda switch_id: True) -> Answer:
+        """The answer for one switch, or (switch_id None) for every switch held that `matches`."""
+        if switch_id is None:
+            switches = [s for s in self.db.switches() if matches(s)]
+        elif self.db.holds(switch_id):
+            switches = [switch_id]
+        elif self.is_mine(switch_id):
+            return self._refuse("unknown switch", f"unknown switch {switch_id}: no history stored",
+                                history_key(switch_id))
+        else:
+            switches = []
+        self.answered += 1
+        return Answer([(history_key(s), self.reply(s, query)) for s in switches])
+
+    def reply(self, switch_id: str, query: HistoryQuery) -> bytes:
+        found = {kind: ([], False) for kind in HISTORY_KINDS}
+        for kind in query.kinds():
+            found[kind] = self.db.latest(switch_id, kind, query.since_ns, query.until_ns, query.limit)
+        return reply_payload(switch_id, self.historian, found["diagnosis"][0], found["health"][0],
+                             found["diagnosis"][1] or found["health"][1])
+
+    def _refuse(self, kind: str, reason: str, key: str) -> Answer:
+        """An error answer; one log line per kind of problem, not one per query."""
+        self.refused[kind] += 1
+        if self.refused[kind] == 1:
+            log.warning("refused a history query on %s: %s (further ones are counted)", key, reason)
+        return Answer(error=reason)
+
+    def counters(self) -> dict[str, int]:
+        return {"queries": self.answered, "queries_refused": sum(self.refused.values())}
+
+
+def merge_replies(replies: Sequence[HistoryReply], limit: int) -> HistoryReply:
+    """One switch's history from the replies of every historian that held some of it (a switch whose shard
+    changed hands), oldest first, the latest `limit` of each kind; a message two of them hold counts once."""
+    def unique(messages: list, time_of: Callable) -> list:
+        by_key = {(time_of(m), m.throw_index): m for m in messages}
+        return [by_key[k] for k in sorted(by_key)]
+
+    diagnoses = unique([d for r in replies for d in r.diagnoses], lambda d: d.t_end_ns)
+    health = unique([h for r in replies for h in r.health], lambda h: h.t_ns)
+    truncated = any(r.truncated for r in replies) or len(diagnoses) > limit or len(health) > limit
+    return HistoryReply(switch_id=replies[0].switch_id, historian=", ".join(r.historian for r in replies),
+                        truncated=truncated, diagnoses=diagnoses[-limit:], health=health[-limit:])

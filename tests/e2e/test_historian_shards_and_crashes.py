@@ -1,0 +1,97 @@
+"""The historian as a real process: an outside Zenoh client gets a switch's history from one historian and from
+two shards at once, a historian killed with -9 loses no committed row and goes on with its file, and one told
+to keep D days prunes its file at start-up."""
+from __future__ import annotations
+
+import signal
+import sqlite3
+import time
+from collections import Counter
+
+from railswitch.schemas import encode, history_key
+from railswitch.services.adapters.history_db import HistoryDb, HistoryRow
+from railswitch.services.core.historian import DAY_NS, message_time
+from railswitch.services.core.shards import in_shard
+from tests.history_bus import ask, diagnosis, health, publish_throws, rows, start_historian, wait_for_rows
+from tests.live import live_bus, wait_for
+
+SWITCHES = [f"sw{k}" for k in range(1, 9)]  # crc32 puts four in each of two shards
+
+
+def test_an_outside_client_gets_a_switchs_history_from_a_live_historian(tmp_path):
+    with live_bus(tmp_path) as (services, endpoint, session, _):
+        start_historian(services, session, endpoint, tmp_path / "history.sqlite")
+        publish_throws(session, ["sw1", "sw2"], range(5))
+        wait_for_rows(session, 20)
+        replies, errors = ask(session, f"{history_key('sw1')}?limit=3")
+    assert errors == []
+    assert [r.switch_id for r in replies] == ["sw1"]
+    assert [d.throw_index for d in replies[0].diagnoses] == [2, 3, 4]  # the latest three, oldest first
+    assert [h.throw_index for h in replies[0].health] == [2, 3, 4]
+    assert replies[0].truncated
+
+
+def test_two_sharded_historians_answer_one_query_with_every_row_exactly_once(tmp_path):
+    assert {in_shard(s, (1, 2)) for s in SWITCHES} == {True, False}  # both shards hold switches
+    with live_bus(tmp_path) as (services, endpoint, session, _):
+        start_historian(services, session, endpoint, tmp_path / "shard1.sqlite", "--shard", "1/2")
+        start_historian(services, session, endpoint, tmp_path / "shard2.sqlite", "--shard", "2/2")
+        publish_throws(session, SWITCHES, range(4))
+        wait_for_rows(session, 2 * 4 * len(SWITCHES))
+        everything, errors = ask(session, "railswitch/*/history")
+        one_by_one = [ask(session, history_key(s)) for s in SWITCHES]
+    expected = Counter((s, kind, k) for s in SWITCHES for kind in ("diagnosis", "health") for k in range(4))
+    assert errors == []
+    assert Counter(rows(everything)) == expected  # each row once: no shard stores another's switches
+    assert len({r.historian for r in everything}) == 2  # both shards answered the one query
+    assert all(errs == [] and len(replies) == 1 for replies, errs in one_by_one)  # the other shard stays silent
+    assert Counter(row for replies, _ in one_by_one for row in rows(replies)) == expected
+    for shard in ("shard1", "shard2"):
+        with sqlite3.connect(tmp_path / f"{shard}.sqlite") as db:
+            stored = {s for (s,) in db.execute("SELECT DISTINCT switch_id FROM history")}
+        assert stored == {s for s in SWITCHES if in_shard(s, (int(shard[-1]), 2))}
+
+
+def test_a_historian_killed_with_9_loses_no_committed_row_and_goes_on_with_its_file(tmp_path):
+    db = tmp_path / "history.sqlite"
+    with live_bus(tmp_path) as (services, endpoint, session, _):
+        first = start_historian(services, session, endpoint, db)
+        publish_throws(session, ["sw1", "sw2"], range(10))
+        wait_for_rows(session, 40)  # answered: committed
+        committed = Counter(rows(ask(session, "railswitch/*/history")[0]))
+        services.stop(first, signal.SIGKILL)
+        with sqlite3.connect(db) as direct:  # the file as the killed process left it, WAL included
+            assert direct.execute("SELECT count(*) FROM history").fetchone()[0] == 40
+        start_historian(services, session, endpoint, db)
+        after_restart = Counter(rows(ask(session, "railswitch/*/history")[0]))
+        publish_throws(session, ["sw1", "sw2"], range(10, 15))
+        wait_for_rows(session, 60)
+        resumed = Counter(rows(ask(session, "railswitch/*/history")[0]))
+    assert first.returncode == -signal.SIGKILL
+    assert after_restart == committed
+    assert resumed == committed + Counter((s, kind, k) for s in ("sw1", "sw2") for kind in ("diagnosis", "health")
+                                          for k in range(10, 15))
+
+
+def test_a_historian_keeping_30_days_prunes_older_rows_of_its_file_at_start_up_by_their_own_time(tmp_path):
+    db = tmp_path / "history.sqlite"
+    recent_ns = time.time_ns() - DAY_NS  # yesterday: kept
+    old = [diagnosis("sw1", k) for k in range(5)] + [health("sw1", k) for k in range(5)]  # November 2023
+    recent = [diagnosis("sw2", k).model_copy(update={"t_start_ns": recent_ns + k, "t_end_ns": recent_ns + k})
+              for k in range(3)] + [health("sw2", k).model_copy(update={"t_ns": recent_ns + k}) for k in range(3)]
+    with HistoryDb(db) as history:
+        history.write([HistoryRow(m.switch_id, "diagnosis" if hasattr(m, "decision") else "health", m.throw_index,
+                                  message_time(m), encode(m).decode()) for m in old + recent])
+
+    def stored() -> list[str]:
+        with sqlite3.connect(db) as direct:
+            return sorted(s for (s,) in direct.execute("SELECT switch_id FROM history"))
+
+    with live_bus(tmp_path) as (services, endpoint, session, _):
+        start_historian(services, session, endpoint, db, "--keep-days", "30")
+        wait_for(lambda: stored() == ["sw2"] * 6, 30, "the rows older than 30 days pruned")
+        sw1, sw1_errors = ask(session, history_key("sw1"))
+        sw2, sw2_errors = ask(session, history_key("sw2"))
+    assert sw1 == [] and sw1_errors == ["unknown switch sw1: no history stored"]
+    assert sw2_errors == [] and Counter(rows(sw2)) == Counter(
+        ("sw2", kind, k) for kind in ("diagnosis", "health") for k in range(3))
