@@ -256,11 +256,15 @@ class StatusReporter:
         self._started = time.monotonic()
         self._next = self._started
 
-    def maybe_publish(self, counters: dict[str, int], force: bool = False) -> None:
+    def maybe_publish(self, counters: dict[str, int] | Callable[[], dict[str, int]], force: bool = False) -> None:
+        """Publish when due (or forced); `counters` may be a function, called only then (a service's loop asks on
+        every message)."""
         now = time.monotonic()
         if not force and now < self._next:
             return
         self._next = now + self.interval_s
+        if callable(counters):
+            counters = counters()
         status = ServiceStatus(service=self.service, instance=self.instance, t_ns=time.time_ns(),
                                uptime_s=now - self._started, received=self.intake.received,
                                rejected=dict(self.intake.rejected), ignored_fields=dict(self.intake.ignored),

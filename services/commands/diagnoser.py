@@ -105,8 +105,8 @@ def run_diagnoser(options: BusOptions, *, model: str, shard: tuple[int, int] | N
             if item is not None:
                 live.handle(item)
             live.expire()
-            status.maybe_publish(live.counters())
-        status.maybe_publish(live.counters(), force=True)
+            status.maybe_publish(live.counters)
+        status.maybe_publish(live.counters, force=True)
         token.undeclare()
         log.info("published %d diagnoses; rejected %s", live.diagnosed, dict(live.intake.rejected) or "nothing")
         return live.diagnosed

@@ -5,18 +5,10 @@ import pytest
 
 from railswitch.models.switch import SwitchSimulation
 from railswitch.models.switch_diagnosis import COMMISSIONING_THROWS
-from railswitch.services.core.fleet_diagnoser import Diagnoser
 from railswitch.services.core.switch_messages import SimulatedThrows
 
 NOISE = 0.01
 BOLT = 0.08
-
-
-@pytest.fixture(scope="module")
-def diagnoser() -> Diagnoser:
-    d = Diagnoser("poly")
-    d.warm_up()
-    return d
 
 
 def commissioned_then_bolt(diagnoser, plant, switch_id, *, current_only=False, **machine):

@@ -20,14 +20,6 @@ from railswitch.services.core.throw_cutter import cut_throws
 RECORDINGS = Path(__file__).resolve().parents[2] / "recordings"
 
 
-@pytest.fixture(scope="module")
-def diagnoser() -> Diagnoser:
-    """The default representation, compiled and commissioned once for the module."""
-    d = Diagnoser("poly")
-    d.warm_up()
-    return d
-
-
 def diagnose(diagnoser: Diagnoser, messages) -> list[Diagnosis]:
     diagnoser.switches.clear()
     return [item.diagnosis for item in diagnose_messages(messages, diagnoser)]

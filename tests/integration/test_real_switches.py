@@ -16,13 +16,6 @@ COMMISSIONING = 2 * COMMISSIONING_THROWS
 NOISE = 0.01
 
 
-@pytest.fixture(scope="module")
-def diagnoser() -> Diagnoser:
-    d = Diagnoser("poly")
-    d.warm_up()
-    return d
-
-
 def run_switch(diagnoser, plant, switch_id, *, own, changes=None, throws, seed=7):
     """Diagnoses of a switch's throws; `changes` maps a throw to (faults, own) set before it."""
     sim = SwitchSimulation(plant, own=own, noise_rel=NOISE, seed=seed)

@@ -8,18 +8,10 @@ import pytest
 
 from railswitch.schemas import Diagnosis, ThrowRecord, encode
 from railswitch.services.adapters.recordings import load_recording
-from railswitch.services.core.fleet_diagnoser import Diagnoser
 from railswitch.services.core.records import record_of_throw, throw_of_record
 from railswitch.services.core.throw_cutter import cut_throws
 
 RECORDINGS = Path(__file__).resolve().parents[2] / "recordings"
-
-
-@pytest.fixture(scope="module")
-def diagnoser() -> Diagnoser:
-    d = Diagnoser("poly")
-    d.warm_up()
-    return d
 
 
 def verdict(diagnosis: Diagnosis) -> dict:
