@@ -83,7 +83,7 @@ class TrendFilter:
         if ratio > SURPRISE:
             sign = int(np.sign(innovation))
             if self.surprised == sign:
-                self._restart(value, variance, keep_slope_variance=True)
+                self._restart(value, variance, keep_slope=True)
                 self.surprised = 0
                 self.updates += 1
                 return
@@ -104,10 +104,15 @@ class TrendFilter:
         self.x, self.p = np.array(data["x"], dtype=float), np.array(data["p"], dtype=float)
         self.updates, self.surprised = int(data["updates"]), int(data["surprised"])
 
-    def _restart(self, value: float, variance: float, keep_slope_variance: bool = False) -> None:
-        slope_variance = self.p[1, 1] if keep_slope_variance and self.p[1, 1] < 1e11 else self.q[1, 1] * 1e4
-        self.x = np.array([value, 0.0])
-        self.p = np.diag([variance, slope_variance])
+    def _restart(self, value: float, variance: float, keep_slope: bool = False) -> None:
+        """The level starts again at `value`. After a step (keep_slope) the trend goes on: a bolt loosening a few
+        millimetres at a time is a staircase whose steps are its slope."""
+        if keep_slope and self.p[1, 1] < 1e11:
+            self.x = np.array([value, self.x[1]])
+            self.p = np.diag([variance, self.p[1, 1]])
+        else:
+            self.x = np.array([value, 0.0])
+            self.p = np.diag([variance, self.q[1, 1] * 1e4])
 
 
 @dataclass(frozen=True)

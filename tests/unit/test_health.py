@@ -53,3 +53,18 @@ def test_a_reset_switch_starts_afresh_and_limits_are_configurable():
     assert tracker.states["bearing_friction"] == "alarm"
     tracker.reset()
     assert tracker.states["bearing_friction"] == "ok" and tracker.filters["bearing_friction"].updates == 0
+
+
+def test_a_bolt_loosening_step_by_step_keeps_its_trend_across_the_steps():
+    """5 mm every 20 throws, seen by every other throw with a 1 mm std: each step is a surprise that restarts the
+    level, and the trend it is part of goes on (0.025 m per 100 throws)."""
+    tracker = HealthTracker()
+    healths = []
+    for k in range(200):
+        if k % 2 == 0:
+            healths.append(tracker.update(k, {"left_bolt_offset": (0.005 * (k // 20), 0.001)}))
+        else:
+            healths.append(tracker.update(k, {}))
+    bolt = [h.parameters["left_bolt_offset"] for h in healths]
+    assert all(b.slope_per_100 > 0.01 for b in bolt[100:])
+    assert 0.5 < bolt[-1].throws_to_limit / ((0.06 - 0.05) / 0.00025) < 2.0
