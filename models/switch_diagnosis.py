@@ -74,6 +74,11 @@ BASELINE_FLOOR = {"bearing_friction": 300.0, "motor.coulomb_friction_nm": 0.006}
 # The rolling losses of a switch's chairs (schemas/plant.py) act like bearing friction at the drive point:
 # per node the same viscous friction, i.e. bearing friction = delta per chair x sum of shape^2 (37.8).
 CHAIR_TO_BEARING = 37.8
+# The chairs' Coulomb coefficient and the bearing friction do nearly the same to a throw (their sensitivities' cosine
+# is 0.987): what a unit of the one does, 1.006e5 N·s/m of the other does (the first's sensitivity projected on the
+# second's over a nominal throw; the same within 0.5 % for every representation, direction and bearing level). A
+# throw tells their sum, not their split; the split comes from the priors.
+CHAIRS_AS_BEARING = 1.006e5
 OUTSIDE_SIGMAS = 4.0  # a commissioned level this far from the population's mean is reported
 DRIFTING = "rail.chair_friction_coefficient"
 DRIFT = 0.1  # how much the chairs' friction may change from its recent level in one throw (a fraction of it),
@@ -502,13 +507,23 @@ class SwitchDiagnoser:
                        health)
 
     def _health_estimates(self, verdict: ThrowVerdict) -> dict[str, tuple[float, float]]:
-        """Each tracked parameter as its own hypothesis estimated it in this throw, if the throw could see it."""
+        """Each tracked parameter as its own hypothesis estimated it in this throw, if the throw could see it.
+
+        Once commissioned, the bearing friction counts the chairs' departure from their commissioned level too
+        (CHAIRS_AS_BEARING): the diagnosis lets the chairs follow the weather throw by throw, which would also let
+        them absorb bearings that dry out slowly, throw by throw, and hide the growth from the trend. Weather then
+        wanders the bearing's level a little (a fifth drier chairs: some 400 N·s/m); a worn bearing shows whole."""
         out = {}
         for name in TRACKED:
             mode = FAULT_PARAMETERS[name].mode
             reported = verdict.reported.get(mode)
             if reported is not None and name in reported.params and not reported.unobservable:
                 out[name] = (reported.params[name], reported.fit_std[name])
+        if "bearing_friction" in out and self.baseline.complete:
+            value, std = out["bearing_friction"]
+            chairs = verdict.estimates["missing_bearing"].values[DRIFTING]
+            commissioned = self.baseline.level(verdict.direction, DRIFTING)[0]
+            out["bearing_friction"] = (value + CHAIRS_AS_BEARING * (chairs - commissioned), std)
         return out
 
     def _provisional_note(self, reason: str | None, provisional: bool) -> str | None:
