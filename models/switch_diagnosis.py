@@ -523,7 +523,8 @@ class SwitchDiagnoser:
             value, std = out["bearing_friction"]
             chairs = verdict.estimates["missing_bearing"].values[DRIFTING]
             commissioned = self.baseline.level(verdict.direction, DRIFTING)[0]
-            out["bearing_friction"] = (value + CHAIRS_AS_BEARING * (chairs - commissioned), std)
+            scale = 1.0 + self.errors.bias_relative.get("bearing_friction", 0.0)  # as _report corrects the bearing's
+            out["bearing_friction"] = (value + CHAIRS_AS_BEARING * (chairs - commissioned) / scale, std)
         return out
 
     def _provisional_note(self, reason: str | None, provisional: bool) -> str | None:
