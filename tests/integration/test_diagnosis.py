@@ -154,11 +154,13 @@ def test_diagnose_on_a_truncated_recording_reports_the_damage_in_one_line(tmp_pa
 def test_missing_bearing_of_the_paper_is_estimated_within_its_standard_deviation(diagnoser):
     """5000 N·s/m is not among the port's calibration points (2000, 3500, 8000). The paper's switch is new
     (never commissioned), so it is judged against the population: its chairs could be drier than nominal,
-    which looks like bearing friction, and the standard deviation says so (about 20 %). Once a switch is
-    commissioned the estimate is tighter: tests/integration/test_real_switches.py."""
+    which looks like bearing friction, and the standard deviation says so (about 18 %); still within 10 %
+    (the calibration's weather change was one-sided and biased it to 11 % low). Once a switch is commissioned
+    the estimate is tighter: tests/integration/test_real_switches.py."""
     diagnoses = diagnose(diagnoser, load_recording(RECORDINGS / "missing_bearing.mcap").messages)
     estimate = diagnoses[-1].estimate
     assert abs(estimate.params["bearing_friction"] - 5000.0) < 2 * estimate.std["bearing_friction"], estimate
+    assert abs(estimate.params["bearing_friction"] - 5000.0) / 5000.0 < 0.10, estimate  # 2.8 % now
 
 
 def test_shipped_bearing_port_is_what_calibration_on_the_plant_gives(plant):
