@@ -34,6 +34,7 @@ import statistics
 import tempfile
 import threading
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -165,42 +166,33 @@ def main() -> None:
     if args.records:
         emit(records_benchmark(args), args.json)
         return
-    endpoint = free_loopback_endpoint()
-    with tempfile.TemporaryDirectory(prefix="railswitch-bus-") as scratch, ServiceProcesses(Path(scratch)) as processes:
-        work = Path(scratch)
-        library = work / "library.mcap"
-        simulate_to_mcap(library, throws=2, noise_rel=0.01, seed=1)
-        processes.start("router", "--listen", endpoint)
-        session = open_session(BusOptions(connect=(endpoint,)), wait_s=30.0)
+    with routed_bus() as (work, library, processes, endpoint, session):
+        observer = Observer(session)
+        recording = work / "fleet.mcap"
+        recorder = processes.start("recorder", "--connect", endpoint, "--out", str(recording))
+        diagnoser = processes.start("diagnoser", "--connect", endpoint)
+        wait_ready(session, processes, diagnoser=1, recorder=1)
+        simulator = processes.start("simulator", "--connect", endpoint, "--switches", str(args.switches),
+                                    "--throws", str(args.throws), "--interval", str(INTERVAL_S),
+                                    "--rate", str(RATE_HZ), "--throws-from", str(library))
+        simulator.wait()
+        expected = args.switches * args.throws
         try:
-            observer = Observer(session)
-            recording = work / "fleet.mcap"
-            recorder = processes.start("recorder", "--connect", endpoint, "--out", str(recording))
-            diagnoser = processes.start("diagnoser", "--connect", endpoint)
-            wait_ready(session, processes, diagnoser=1, recorder=1)
-            simulator = processes.start("simulator", "--connect", endpoint, "--switches", str(args.switches),
-                                        "--throws", str(args.throws), "--interval", str(INTERVAL_S),
-                                        "--rate", str(RATE_HZ), "--throws-from", str(library))
-            simulator.wait()
-            expected = args.switches * args.throws
-            try:
-                wait_for(lambda: len(observer.diagnoses) >= expected, 120, "every throw's diagnosis")
-            except TimeoutError:
-                pass
-            time.sleep(1.0)
-            processes.stop(recorder)
-            processes.stop(diagnoser)
-            samples, missing = missing_seqs(recording)
-            latencies = [1e3 * (observer.diagnoses[k] - observer.ends[k]) for k in observer.diagnoses if k in observer.ends]
-            rate = observer.samples_per_s()
-            undiagnosed = expected - len(observer.diagnoses)
+            wait_for(lambda: len(observer.diagnoses) >= expected, 120, "every throw's diagnosis")
+        except TimeoutError:
+            pass
+        time.sleep(1.0)
+        processes.stop(recorder)
+        processes.stop(diagnoser)
+        samples, missing = missing_seqs(recording)
+        latencies = [1e3 * (observer.diagnoses[k] - observer.ends[k]) for k in observer.diagnoses if k in observer.ends]
+        rate = observer.samples_per_s()
+        undiagnosed = expected - len(observer.diagnoses)
 
-            backlog = work / "backlog.mcap"
-            backlog_throws = backlog_recording(recording, backlog, args.backlog_switches)
-            one = clear_rate(processes, session, observer, endpoint, backlog, backlog_throws, 1)
-            two = clear_rate(processes, session, observer, endpoint, backlog, backlog_throws, 2)
-        finally:
-            session.close()
+        backlog = work / "backlog.mcap"
+        backlog_throws = backlog_recording(recording, backlog, args.backlog_switches)
+        one = clear_rate(processes, session, observer, endpoint, backlog, backlog_throws, 1)
+        two = clear_rate(processes, session, observer, endpoint, backlog, backlog_throws, 2)
     result = {
         "switches": args.switches,
         "samples_per_s": round(rate, 1),
@@ -370,9 +362,11 @@ def paced_run(processes, session, observer: RecordObserver, endpoint: str, libra
     return out
 
 
-def records_benchmark(args) -> dict:
+@contextmanager
+def routed_bus():
+    """A scratch folder with a library of recorded throws, a router on a free loopback port and a session on it:
+    (work folder, library, processes, endpoint, session); every process stopped and the session closed after."""
     endpoint = free_loopback_endpoint()
-    paced_s = args.paced_s or (60.0 if args.elastic else 40.0)
     with tempfile.TemporaryDirectory(prefix="railswitch-bus-") as scratch, ServiceProcesses(Path(scratch)) as processes:
         work = Path(scratch)
         library = work / "library.mcap"
@@ -380,16 +374,22 @@ def records_benchmark(args) -> dict:
         processes.start("router", "--listen", endpoint)
         session = open_session(BusOptions(connect=(endpoint,)), wait_s=30.0)
         try:
-            observer = RecordObserver(session)
-            diagnosers = [processes.start("diagnoser", "--connect", endpoint, "--state", str(work / f"state-{k}"),
-                                          "--status-interval", STATUS_S) for k in (1, 2)]
-            wait_ready(session, processes, diagnoser=2)
-            capacity = capacity_run(processes, observer, endpoint, library, diagnosers, args.burst)
-            rate = args.load * capacity["throws_per_s_cleared"]
-            paced = paced_run(processes, session, observer, endpoint, library, work, diagnosers, args.fleet, rate,
-                              paced_s, args.elastic)
+            yield work, library, processes, endpoint, session
         finally:
             session.close()
+
+
+def records_benchmark(args) -> dict:
+    paced_s = args.paced_s or (60.0 if args.elastic else 40.0)
+    with routed_bus() as (work, library, processes, endpoint, session):
+        observer = RecordObserver(session)
+        diagnosers = [processes.start("diagnoser", "--connect", endpoint, "--state", str(work / f"state-{k}"),
+                                      "--status-interval", STATUS_S) for k in (1, 2)]
+        wait_ready(session, processes, diagnoser=2)
+        capacity = capacity_run(processes, observer, endpoint, library, diagnosers, args.burst)
+        rate = args.load * capacity["throws_per_s_cleared"]
+        paced = paced_run(processes, session, observer, endpoint, library, work, diagnosers, args.fleet, rate,
+                          paced_s, args.elastic)
     result = {"records": True, "elastic": args.elastic, "throws_per_s_cleared": capacity["throws_per_s_cleared"],
               "switches_per_core": capacity["switches_per_core"], "lost": paced["lost"],
               "latency_ms": paced["latency_ms"]}
