@@ -12,16 +12,13 @@ import os
 from pathlib import Path
 
 from railswitch.schemas import check_switch_id
+from railswitch.services.adapters.user_directories import user_directory
 
 log = logging.getLogger("railswitch.baselines")
 
 
 def default_directory() -> Path:
-    configured = os.environ.get("RAILSWITCH_STATE")
-    if configured:
-        return Path(configured)
-    state_home = os.environ.get("XDG_STATE_HOME") or Path.home() / ".local" / "state"
-    return Path(state_home) / "railswitch" / "baselines"
+    return user_directory("RAILSWITCH_STATE", "XDG_STATE_HOME", (".local", "state"), "baselines")
 
 
 class BaselineStore:

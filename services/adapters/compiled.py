@@ -19,12 +19,13 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from railswitch.services.adapters.user_directories import user_directory
+
 
 def default_cache_dir() -> Path | None:
     """$RAILSWITCH_CACHE, else the user's cache directory; None when it cannot be made."""
     try:
-        cache_dir = Path(os.environ.get("RAILSWITCH_CACHE")
-                         or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "railswitch")
+        cache_dir = user_directory("RAILSWITCH_CACHE", "XDG_CACHE_HOME", (".cache",))
         cache_dir.mkdir(parents=True, exist_ok=True)
         return cache_dir
     except (OSError, RuntimeError):  # RuntimeError: no home directory

@@ -20,17 +20,14 @@ import numpy as np
 from railswitch.models.rail_models import REPRESENTATIONS, Representation
 from railswitch.models.reduced import BearingPort, NEUTRAL_PORT
 from railswitch.models.reference import DIRECTIONS
+from railswitch.services.adapters.user_directories import user_directory
 
 SHIPPED_DIR = Path(str(resources.files("railswitch.models").joinpath("params")))
 
 
 def user_dir() -> Path:
     """The directory of the user's own trained or calibrated models (it need not exist)."""
-    configured = os.environ.get("RAILSWITCH_MODELS")
-    if configured:
-        return Path(configured)
-    data_home = os.environ.get("XDG_DATA_HOME") or Path.home() / ".local" / "share"
-    return Path(data_home) / "railswitch" / "models"
+    return user_directory("RAILSWITCH_MODELS", "XDG_DATA_HOME", (".local", "share"), "models")
 
 
 def check_name(name: str) -> str:
