@@ -62,13 +62,12 @@ class TrendFilter:
     p: np.ndarray = field(default_factory=lambda: np.diag([1e12, 1e12]))
     updates: int = 0
     q: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
+    surprised: int = 0  # the sign of the last throw's innovation when it was an outlier, else 0
 
     def predict(self) -> None:
         f = np.array([[1.0, 1.0], [0.0, 1.0]])
         self.x = f @ self.x
         self.p = f @ self.p @ f.T + self.q
-
-    surprised: int = 0  # the sign of the last throw's innovation when it was an outlier, else 0
 
     def update(self, value: float, variance: float) -> None:
         """Fuse one estimate. An innovation beyond SURPRISE standard deviations counts as at most that (Huber),
