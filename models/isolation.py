@@ -16,9 +16,14 @@ same false-alarm rate (shared between the k tried), so a fault that each of two
 throws shows at two thirds of the one-throw threshold is found. A bolt only drives
 the blades in one direction (the left bolt from left to right), so a throw can show
 only the bolt that drives it.
+
+A detected departure is a fault only when it is larger than a healthy switch may be set up
+with: an adjuster set within a few millimetres of its mark is an adjustment, not a fault (the
+caller names the modes whose fitted size is that small).
 """
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass
 
 import numpy as np
@@ -90,11 +95,13 @@ def healthy_gains(estimates: dict[str, Estimate]) -> dict[str, float]:
 
 
 def judge(direction: str, estimates: dict[str, Estimate], model_gains: dict[str, float] | None = None,
-          earlier: dict[str, list[Evidence]] | None = None) -> tuple[str, dict[str, Evidence]]:
+          earlier: dict[str, list[Evidence]] | None = None,
+          negligible: Collection[str] = ()) -> tuple[str, dict[str, Evidence]]:
     """The detected mode with the best fit, or nominal when none is detected; `earlier` holds each mode's
-    evidence from the switch's previous throws that could see it, most recent first."""
+    evidence from the switch's previous throws that could see it, most recent first. A mode in `negligible`
+    (its fitted size within what a healthy switch is set up with) keeps its evidence but is not a fault."""
     gains = model_gains or {}
     found = {m: accumulated(evidence(estimates, m, gains.get(m, 0.0)), (earlier or {}).get(m, []))
              for m in candidate_modes(direction) if m in estimates}
-    detected = [m for m, e in found.items() if e.detected]
+    detected = [m for m, e in found.items() if e.detected and m not in negligible]
     return (min(detected, key=lambda m: estimates[m].objective) if detected else "nominal"), found

@@ -85,6 +85,11 @@ DRIFT = 0.1  # how much the chairs' friction may change from its recent level in
 # beyond what its estimates scatter from throw to throw on the healthy switch
 FOLLOW = 0.5  # the weight of each healthy throw in the recent level
 BOUND_SIGMAS = 5.0  # a commissioned level's hard limits, in its standard deviations
+# An adjuster bolt set within this of its mark is a healthy switch's adjustment, not a fault (a bolt's fitted
+# offset this small is not reported as one): the setting tolerance of a few millimetres a fitter works to, and
+# about what the model's error reads as a bolt on a healthy switch unlike the nominal one (a machine type
+# stroking 30 % slower reads -3 mm on both bolts; the worst population switch on nn up to 4 mm).
+BOLT_TOLERANCE = 0.005
 BOLT_GRID = tuple(np.round(np.arange(-0.02, 0.2001, 0.02), 4))
 OBSTACLE_GRID = tuple({"obstacle_position": round(float(p), 3), "obstacle_friction": f}
                       for p in np.arange(1.02, 1.1801, 0.02) for f in (3e4, 1.5e5))
@@ -483,8 +488,9 @@ class SwitchDiagnoser:
         gains = self._gains(throw.direction)
         estimates = self.estimator.fit_all(
             m, self.specs(throw.direction), weight,
-            joint_when=lambda fits: judge(throw.direction, fits, gains, self.evidence)[0] != "nominal")
-        mode, found = judge(throw.direction, estimates, gains, self.evidence)
+            joint_when=lambda fits: judge(throw.direction, fits, gains, self.evidence,
+                                          self.negligible(fits))[0] != "nominal")
+        mode, found = judge(throw.direction, estimates, gains, self.evidence, self.negligible(estimates))
         for name, seen in found.items():
             self.evidence[name] = [seen, *self.evidence.get(name, [])][:EVIDENCE_THROWS]
         fitted = self.estimator.simulate(m, estimates[mode].values)
@@ -505,6 +511,16 @@ class SwitchDiagnoser:
         health = self.health.update(throw.index, self._health_estimates(verdict))
         return Outcome(decision, self._provisional_note(reason, provisional), verdict, self._follow(decision, verdict),
                        health)
+
+    def negligible(self, estimates: dict[str, Estimate]) -> list[str]:
+        """The bolt modes whose fitted offset (less the model's bias) is within BOLT_TOLERANCE: an adjustment."""
+        out = []
+        for mode in DRIVING_BOLT.values():
+            if mode in estimates:
+                name = MODE_PARAMETERS[mode][0]
+                if abs(self.errors.corrected(name, estimates[mode].values[name])) < BOLT_TOLERANCE:
+                    out.append(mode)
+        return out
 
     def _health_estimates(self, verdict: ThrowVerdict) -> dict[str, tuple[float, float]]:
         """Each tracked parameter as its own hypothesis estimated it in this throw, if the throw could see it.

@@ -56,13 +56,13 @@ def test_point_machines_of_other_stroke_times_are_diagnosed_and_their_faults_fou
     assert diagnoser.compiles == 1
 
 
-@pytest.mark.xfail(strict=True, reason="known limit: a machine type stroking 30 % slower than the model's shows a "
-                                       "steady -3 mm on both bolts, so its healthy throws are not nominal, it never "
-                                       "commissions and a fault's estimate is averaged with them (the rails are "
-                                       "trained on one stroke time)")
 def test_healthy_throws_of_a_slower_machine_type_stay_nominal(diagnoser, plant):
+    """A machine stroking 30 % slower than the model's reads a steady -3 mm on both bolts (model error): within a
+    bolt's setting tolerance, so its throws are healthy, it commissions, and the later bolt is found."""
     diagnoses = commissioned_then_bolt(diagnoser, plant, f"machine{len(diagnoser.switches)}", **OTHER_TYPES[1])
     assert [d.decision for d in diagnoses[:-2]] == ["nominal"] * (len(diagnoses) - 2)
+    assert diagnoses[-1].decision == "left_bolt"
+    assert diagnoses[-1].estimate.params["left_bolt_offset"] == pytest.approx(BOLT, rel=0.1)
 
 
 def test_a_throw_cut_short_while_moving_is_unknown(diagnoser, plant):
