@@ -13,20 +13,48 @@ range per throw and a slope that changes by SLOPE_WANDER of it per throw squared
 only by the throws it drives; the other parameters by every throw. The model's error does not
 average out, so it is added once to the level's reported spread (not fed to the filter).
 
-Throws to the maintenance limit: (limit - level) / slope for a rising parameter, its interval the
-5 % and 95 % quantiles over draws of (level, slope) from the filter's covariance. The state is
-`ok`, `watch` (the limit within WATCH_THROWS at the present trend, if the trend is beyond twice its
-standard deviation, or the level past WATCH_SHARE of it) or `alarm` (the level past the limit, or reached within ALARM_THROWS even at the interval's
-far end), with hysteresis: a state is entered after ENTER consecutive throws that call for it and
-left only when the level has fallen back by HYSTERESIS of the limit. A re-commissioned switch (a
-repaired one) starts afresh.
+Some faults grow in steps: a bolt works loose a few millimetres at a time, every ten or twenty
+throws. Flat between its steps and leaping at them, such a parameter misleads a filter that follows
+the latest trend (no growth for twenty throws, then a fast one). What its future depends on is its
+average rate since it began to grow. So the trend and the throws to the limit come from a
+broken-stick regression over the parameter's estimates since the switch was commissioned (the
+filter's outliers left out unless the next estimate confirms them as a step): flat up to a hinge,
+straight after it, the hinge where the two fit best (a changepoint; the line is the least-squares
+one, for a linear growth and a staircase alike). It stands only where it fits better than a level
+alone (an F test at TREND_FALSE_ALARM, with MIN_RISING estimates past the hinge at least); until
+then no trend is shown (the filter's slope is reported, but not taken to the limit). What the line's
+slope may be off by is the larger of
+- the least-squares covariance from the residuals' scatter, widened by how correlated the residuals
+  are (a staircase's are: models/estimation.py effective_samples), and
+- the growth's own unsteadiness: how the rates over two, three and four equal stretches of it
+  scatter (for a staircase of irregular steps, far more than its residuals about one line say).
+
+Throws to the maintenance limit: (limit - line) / slope for a rising parameter, the line and slope at
+the latest throw, its interval the 5 % and 95 % quantiles over draws of (line, slope) from their
+covariance, with on the line the model's error and what the path strays from its line beyond the
+estimates' noise (a staircase by a twelfth of a step squared). The line rather than the filter's
+latest level: right after a staircase's step the level is a whole step ahead of the average growth,
+and the next step is on average half an interval further off.
+
+The state is `ok`, `watch` (the level past WATCH_SHARE of the limit, or the limit within
+WATCH_THROWS at a trend beyond twice its standard deviation) or `alarm` (the level past the limit
+by its standard deviation, or the limit reached within ALARM_THROWS even at the interval's far
+end), with hysteresis both ways: a state is entered after ENTER throws in a row call for it (a
+step, two estimates in a row far off on the same side, is two such throws already), and left only
+after ENTER throws in a row fall short of it by relaxed criteria (a level HYSTERESIS of the limit
+lower, a trend beyond one standard deviation, horizons twice as far), so a trend that wavers
+about its threshold does not flap the state. A switch starts afresh when it is commissioned (its
+estimates are departures from its own baseline from then on) and when it is re-commissioned (a
+repaired one).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import special
 
+from railswitch.models.estimation import effective_samples
 from railswitch.schemas.faults import FAULT_PARAMETERS
 
 # Maintenance limits (departures from the commissioned baseline) where a switch needs a visit. Defaults,
@@ -49,6 +77,11 @@ WATCH_SHARE = 0.5
 HYSTERESIS = 0.1
 ENTER = 2
 SURPRISE = 4.0  # innovations beyond this many standard deviations are outliers (or, twice running, a step)
+# Estimates kept per parameter (its history goes on the bus with the switch's state after every throw): beyond,
+# the older half is merged pairwise, so old, flat stretches grow coarse and the recent ones stay whole.
+HISTORY = 64
+MIN_RISING = 6  # estimates at or past a hinge, at least
+TREND_FALSE_ALARM = 1e-3  # the broken stick stands only when it fits better than a level alone at this F test's rate
 STATES = ("ok", "watch", "alarm")
 DRAWS = 400
 LOW_QUANTILE, HIGH_QUANTILE = 0.05, 0.95  # of the throws-to-limit interval
@@ -69,23 +102,25 @@ class TrendFilter:
         self.x = f @ self.x
         self.p = f @ self.p @ f.T + self.q
 
-    def update(self, value: float, variance: float) -> None:
+    def update(self, value: float, variance: float) -> tuple[bool, bool]:
         """Fuse one estimate. An innovation beyond SURPRISE standard deviations counts as at most that (Huber),
-        so one odd throw barely moves the filter; two in a row on the same side are a step: the level restarts there."""
+        so one odd throw barely moves the filter; two in a row on the same side are a step: the level restarts
+        there. Returns whether the estimate was taken for an outlier, and whether it confirmed a step."""
         if self.updates == 0:  # the first estimate sets the level; the slope is still unknown
             self._restart(value, variance)
             self.updates += 1
-            return
+            return False, False
         innovation = value - self.x[0]
         s = float(self.p[0, 0]) + variance
         ratio = abs(innovation) / np.sqrt(s)
-        if ratio > SURPRISE:
+        outlier = ratio > SURPRISE
+        if outlier:
             sign = int(np.sign(innovation))
             if self.surprised == sign:
                 self._restart(value, variance, keep_slope=True)
                 self.surprised = 0
                 self.updates += 1
-                return
+                return False, True
             self.surprised = sign
             variance = variance * (ratio / SURPRISE) ** 2
             s = float(self.p[0, 0]) + variance
@@ -95,6 +130,7 @@ class TrendFilter:
         self.x = self.x + gain * innovation
         self.p = self.p - np.outer(gain, self.p[0, :])
         self.updates += 1
+        return outlier, False
 
     def to_dict(self) -> dict:
         return {"x": self.x.tolist(), "p": self.p.tolist(), "updates": self.updates, "surprised": self.surprised}
@@ -112,6 +148,127 @@ class TrendFilter:
         else:
             self.x = np.array([value, 0.0])
             self.p = np.diag([variance, self.q[1, 1] * 1e4])
+
+
+@dataclass
+class History:
+    """A parameter's estimates over the throws: (throw, value, its fit's variance, how many estimates it merges)."""
+
+    rows: list[tuple[float, float, float, int]] = field(default_factory=list)
+    pending: tuple[float, float, float] | None = None  # the latest estimate, when the filter took it for an outlier
+    _line: object = field(default=None, repr=False, compare=False)  # the latest fit, _STALE after an estimate came
+
+    def __post_init__(self) -> None:
+        self._line = _STALE
+
+    def record(self, throw: float, value: float, variance: float, outlier: bool, step: bool) -> None:
+        """One estimate, unless the filter took it for an outlier: that one waits, and counts only if the next one
+        confirms it as a step."""
+        if step and self.pending is not None:
+            self.add(*self.pending)
+        self.pending = (throw, value, variance) if outlier else None
+        if not outlier:
+            self.add(throw, value, variance)
+
+    def add(self, throw: float, value: float, variance: float) -> None:
+        self.rows.append((float(throw), float(value), float(variance), 1))
+        self._line = _STALE
+        if len(self.rows) > HISTORY:  # halve the resolution of the older half, keep the recent half whole
+            old, recent = self.rows[:HISTORY // 2], self.rows[HISTORY // 2:]
+            merged = [tuple((a * n1 + b * n2) / (n1 + n2) for a, b in zip(r1[:3], r2[:3])) + (n1 + n2,)
+                      for r1, r2, n1, n2 in ((r1, r2, r1[3], r2[3]) for r1, r2 in zip(old[::2], old[1::2]))]
+            self.rows = merged + old[len(merged) * 2:] + recent
+
+    def broken_stick(self, now: float) -> tuple[np.ndarray, np.ndarray, float] | None:
+        """(line, slope) at `now`, their covariance and how far the path strays from the line (a variance), from
+        the best flat-then-straight fit; None while no such fit is better than a level alone."""
+        if self._line is _STALE:
+            self._line = fit_broken_stick(*(np.array(c, dtype=float) for c in zip(*self.rows))) if self.rows else None
+        if self._line is None:
+            return None
+        hinge, coefficients, covariance, path = self._line
+        at = np.array([[1.0, max(now - hinge, 0.0)], [0.0, 1.0]])  # (at the hinge, slope) to (line at now, slope)
+        return at @ coefficients, at @ covariance @ at.T, path
+
+    def to_dict(self) -> dict:
+        return {"rows": [list(row) for row in self.rows],
+                "pending": None if self.pending is None else list(self.pending)}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> History:
+        rows = [(float(t), float(v), float(var), int(n)) for t, v, var, n in data["rows"]]
+        pending = data.get("pending")
+        return cls(rows, None if pending is None else tuple(float(x) for x in pending))
+
+
+_STALE = object()
+
+
+def _suffix(values: np.ndarray) -> np.ndarray:
+    return np.cumsum(values[::-1])[::-1]
+
+
+def _rate(t: np.ndarray, v: np.ndarray, n: np.ndarray) -> float:
+    """Weighted least-squares slope."""
+    tc = t - np.sum(n * t) / np.sum(n)
+    return float(np.sum(n * tc * v) / np.sum(n * tc * tc))
+
+
+def fit_broken_stick(t: np.ndarray, v: np.ndarray, fit_variance: np.ndarray,
+                     n: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, float] | None:
+    """The flat-then-straight least-squares fit over every hinge at an estimate with MIN_RISING estimates at or
+    after it (sums over the estimates past each hinge, so all hinges cost one pass): (hinge, (value at the hinge,
+    slope), their covariance, the path's stray variance), or None when it fits no better than a level alone."""
+    if len(t) < MIN_RISING + 3:
+        return None
+    origin, mean_v = t[0], float(np.sum(n * v) / np.sum(n))
+    t, v = t - origin, v - mean_v  # centred: the sums below do not cancel
+    s0, s1, s2 = _suffix(n), _suffix(n * t), _suffix(n * t * t)
+    v0, t1 = _suffix(n * v), _suffix(n * t * v)
+    hinges = np.arange(len(t) - MIN_RISING + 1)
+    th = t[hinges]
+    sw, sy, syy = float(np.sum(n)), float(np.sum(n * v)), float(np.sum(n * v * v))
+    sx = s1[hinges] - th * s0[hinges]
+    sxx = s2[hinges] - 2 * th * s1[hinges] + th * th * s0[hinges]
+    sxy = t1[hinges] - th * v0[hinges]
+    det = sw * sxx - sx**2
+    ok = det > 1e-9 * np.maximum(sw * sxx, 1e-300)
+    if not ok.any():
+        return None
+    slope = np.where(ok, (sw * sxy - sx * sy) / np.where(ok, det, 1.0), 0.0)
+    intercept = (sy - slope * sx) / sw
+    rss = np.where(ok, syy - intercept * sy - slope * sxy, np.inf)
+    best = int(np.argmin(rss))
+    x = np.maximum(t - th[best], 0.0)
+    residual = v - intercept[best] - slope[best] * x
+    rss_best = float(np.sum(n * residual**2))
+    if rss_best <= 0:
+        return None
+    f = (syy - rss_best) / 2.0 / (rss_best / (len(v) - 3))  # syy: the level alone's (v is centred)
+    if f < special.fdtri(2, len(v) - 3, 1.0 - TREND_FALSE_ALARM):  # no better than a level: no trend shown
+        return None
+    scatter = rss_best / (len(v) - 2)  # of one estimate about the line (a merged row's weight is its count)
+    correlated = len(v) / max(min(effective_samples(residual[:, None]), len(v)), 1.0)
+    covariance = scatter * correlated * np.linalg.inv(np.array([[sw, sx[best]], [sx[best], sxx[best]]]))
+    rising = t >= th[best]
+    covariance[1, 1] = max(covariance[1, 1], unsteadiness(t[rising], v[rising], n[rising]))
+    stray = max(scatter - float(np.sum(n * fit_variance) / sw), 0.0)
+    return float(th[best] + origin), np.array([intercept[best] + mean_v, slope[best]]), covariance, stray
+
+
+def unsteadiness(t: np.ndarray, v: np.ndarray, n: np.ndarray) -> float:
+    """A growth's own unsteadiness, as a variance of its average rate, whatever the residuals about one line say:
+    the rate over each of B equal stretches of it scatters by sqrt(B) times the whole's standard deviation (for a
+    steady random growth, such as a staircase of irregular steps); the mean over B = 2, 3 and 4 stretches."""
+    estimates = []
+    for blocks in (2, 3, 4):
+        edges = np.linspace(t[0], t[-1], blocks + 1)
+        part = np.minimum(np.searchsorted(edges, t, side="right") - 1, blocks - 1)
+        if np.min(np.bincount(part, minlength=blocks)) < 3:
+            continue
+        rates = [_rate(t[part == k], v[part == k], n[part == k]) for k in range(blocks)]
+        estimates.append(float(np.var(rates, ddof=1)) / blocks)
+    return float(np.mean(estimates)) if estimates else 0.0
 
 
 @dataclass(frozen=True)
@@ -155,18 +312,23 @@ class HealthTracker:
             span = FAULT_PARAMETERS[name].high - FAULT_PARAMETERS[name].low
             q = np.diag([(LEVEL_WANDER * span) ** 2, (SLOPE_WANDER * span) ** 2])
             self.filters[name] = TrendFilter(q=q)
+        self.histories: dict[str, History] = {name: History() for name in TRACKED}
         self.states = dict.fromkeys(TRACKED, "ok")
         self._calls = {name: ("ok", 0) for name in TRACKED}
 
     def to_dict(self) -> dict:
         """What a restarted diagnoser needs to go on tracking: every filter and the alarm states."""
         return {"filters": {name: f.to_dict() for name, f in self.filters.items()}, "states": dict(self.states),
+                "histories": {name: h.to_dict() for name, h in self.histories.items() if h.rows},
                 "calls": {name: list(call) for name, call in self._calls.items()}}
 
     def load(self, data: dict) -> None:
         for name, filter_state in data["filters"].items():
             if name in self.filters:
                 self.filters[name].load(filter_state)
+        for name, rows in data.get("histories", {}).items():  # a state saved before histories were kept has none
+            if name in self.histories:
+                self.histories[name] = History.from_dict(rows)
         self.states.update({name: s for name, s in data["states"].items() if name in self.states})
         self._calls.update({name: (c[0], int(c[1])) for name, c in data["calls"].items() if name in self._calls})
 
@@ -175,40 +337,54 @@ class HealthTracker:
         out = {}
         for name, tracker in self.filters.items():
             tracker.predict()
+            step = False
             if name in estimates:
                 value, std = estimates[name]
-                tracker.update(value, max(std, 1e-12) ** 2)
-            out[name] = self._health(name, tracker)
+                outlier, step = tracker.update(value, max(std, 1e-12) ** 2)
+                self.histories[name].record(throw_index, value, max(std, 1e-12) ** 2, outlier, step)
+            out[name] = self._health(name, tracker, self.histories[name].broken_stick(throw_index), step)
         ranked = [h for h in out.values() if self.filters[h.name].updates]
         worst = min(ranked, key=lambda h: (h.throws_to_limit if h.throws_to_limit is not None else np.inf,
                                            -h.level / h.limit)) if ranked else None
         state = max((h.state for h in out.values()), key=STATES.index)
         return Health(throw_index, state, worst.name if worst else None, out)
 
-    def _health(self, name: str, tracker: TrendFilter) -> ParameterHealth:
+    def _health(self, name: str, tracker: TrendFilter, line: tuple[np.ndarray, np.ndarray, float] | None = None,
+                step: bool = False) -> ParameterHealth:
+        """The parameter's level (the filter's), its trend and throws to the limit (the broken-stick line's once
+        it has one, the filter's before)."""
         limit = self.limits[name]
-        level, slope = float(tracker.x[0]), float(tracker.x[1])
-        level_std = float(np.hypot(np.sqrt(max(tracker.p[0, 0], 0.0)), self.model_error.get(name, 0.0)))
-        slope_std = float(np.sqrt(max(tracker.p[1, 1], 0.0)))
         if tracker.updates == 0:
             return ParameterHealth(name, 0.0, float("inf"), 0.0, float("inf"), limit, None, None, None, "ok")
-        to_limit, low, high = self._throws_to_limit(tracker, limit, self.model_error.get(name, 0.0))
-        rising = slope > 2.0 * slope_std  # a trend that is there, not the filter's noise
-        state = self._state(name, level, level_std, to_limit if rising else None, high)
+        level = float(tracker.x[0])
+        level_std = float(np.hypot(np.sqrt(max(tracker.p[0, 0], 0.0)), self.model_error.get(name, 0.0)))
+        mean, covariance, stray = line if line is not None else (tracker.x, tracker.p, 0.0)
+        slope, slope_std = float(mean[1]), float(np.sqrt(max(covariance[1, 1], 0.0)))
+        model_error = self.model_error.get(name, 0.0)
+        if level >= limit:
+            to_limit, low, high = 0.0, 0.0, 0.0
+        elif line is None:  # no trend shown yet (the filter's slope is reported, not extrapolated)
+            to_limit, low, high = None, None, None
+        else:  # the path strays from its line on the way (a staircase's steps) as much as it has so far
+            to_limit, low, high = self._throws_to_limit(mean, covariance, limit, np.sqrt(model_error**2 + stray))
+        calls = tuple(self._call(name, level, level_std, slope, slope_std, to_limit, high, relaxed)
+                      for relaxed in (False, True))
+        by_level = self._call(name, level, level_std, slope, slope_std, None, None, False)
+        state = self._state(name, calls, step and by_level == calls[0])
         return ParameterHealth(name, level, level_std, 100.0 * slope, 100.0 * slope_std, limit, to_limit, low, high, state)
 
-    def _throws_to_limit(self, tracker: TrendFilter, limit: float,
-                         model_error: float) -> tuple[float | None, float | None, float | None]:
+    def _throws_to_limit(self, mean: np.ndarray, covariance: np.ndarray, limit: float,
+                         level_error: float) -> tuple[float | None, float | None, float | None]:
         """Median-free estimate (limit - level) / slope and its 5 %-95 % interval over draws of (level, slope)
-        from the filter's covariance with the model's error on the level."""
-        level, slope = tracker.x
+        from their covariance, with `level_error` (a standard deviation) more on the level."""
+        level, slope = mean
         if level >= limit:
             return 0.0, 0.0, 0.0
         if slope <= 0:
             return None, None, None
-        covariance = tracker.p + np.diag([model_error**2, 0.0])
+        covariance = covariance + np.diag([level_error**2, 0.0])
         eigenvalues, vectors = np.linalg.eigh(covariance)
-        draws = tracker.x + self._normal @ (vectors * np.sqrt(np.maximum(eigenvalues, 0.0))).T
+        draws = mean + self._normal @ (vectors * np.sqrt(np.maximum(eigenvalues, 0.0))).T
         rising = draws[:, 1] > 0
         times = np.sort(np.maximum((limit - draws[rising, 0]) / draws[rising, 1], 0.0))
         # quantiles over every draw: a draw that never rises never reaches the limit (an infinite time, above all)
@@ -216,24 +392,38 @@ class HealthTracker:
         high = float(times[int(HIGH_QUANTILE * DRAWS)]) if int(HIGH_QUANTILE * DRAWS) < len(times) else None
         return float((limit - level) / slope), low, high
 
-    def _state(self, name: str, level: float, level_std: float, to_limit: float | None, high: float | None) -> str:
+    def _call(self, name: str, level: float, level_std: float, slope: float, slope_std: float,
+              to_limit: float | None, high: float | None, relaxed: bool) -> str:
+        """The state a throw calls for; `relaxed`: the criteria a state already entered is held by (a level
+        HYSTERESIS of the limit lower, a trend beyond one standard deviation instead of two, horizons twice as
+        far), so that what brought a state about must clearly be gone before it is left."""
         limit = self.limits[name]
-        if level - level_std >= limit or (to_limit is not None and high is not None and high <= ALARM_THROWS):
-            called = "alarm"
-        elif level >= WATCH_SHARE * limit or (to_limit is not None and to_limit <= WATCH_THROWS):
-            called = "watch"
-        else:
-            called = "ok"
+        margin, sigmas, horizon = (HYSTERESIS * limit, 1.0, 2.0) if relaxed else (0.0, 2.0, 1.0)
+        heading = to_limit is not None and slope > sigmas * slope_std  # a trend that is there, not noise
+        past = level - (0.0 if relaxed else level_std) >= limit - margin
+        if past or (heading and high is not None and high <= horizon * ALARM_THROWS):
+            return "alarm"
+        if level >= WATCH_SHARE * limit - margin or (heading and to_limit <= horizon * WATCH_THROWS):
+            return "watch"
+        return "ok"
+
+    def _state(self, name: str, calls: tuple[str, str], step: bool = False) -> str:
+        """The state after this throw, from its (strict, relaxed) calls: a higher state is entered after ENTER
+        throws in a row call for it (a step, two estimates in a row far off on the same side, is two throws calling
+        already), a state is left after ENTER throws in a row fall short of it even by the relaxed criteria."""
+        called, held = calls
         current = self.states[name]
-        previous, count = self._calls[name]
-        count = count + 1 if called == previous else 1
-        self._calls[name] = (called, count)
         if STATES.index(called) > STATES.index(current):
-            if count >= ENTER:
-                self.states[name] = called
-        elif STATES.index(called) < STATES.index(current):
-            # leave only when the level has fallen back below the state's threshold by HYSTERESIS of the limit
-            threshold = limit if current == "alarm" else WATCH_SHARE * limit
-            if level < threshold - HYSTERESIS * limit and count >= ENTER:
-                self.states[name] = called
+            wish = called
+        elif STATES.index(held) < STATES.index(current):
+            wish = held
+        else:
+            wish = current
+        previous, count = self._calls[name]
+        count = count + 1 if wish == previous else 1
+        if step:  # a step the level alone calls for (its trend is not shown by one step)
+            count = max(count, ENTER)
+        self._calls[name] = (wish, count)
+        if wish != current and count >= ENTER:
+            self.states[name] = wish
         return self.states[name]

@@ -508,7 +508,11 @@ class SwitchDiagnoser:
                 levels = {name: nominal.values[name] for name in (*BASELINED, DRIFTING)}
                 self.baseline.add(throw.direction, levels, healthy_gains(estimates), nominal.mse / nominal.effective_samples)
         decision, reason = self.combined()
-        health = self.health.update(throw.index, self._health_estimates(verdict))
+        if provisional and self.baseline.complete:  # from now on its estimates depart from its own baseline
+            self.health.reset()
+            health = self.health.update(throw.index, {})
+        else:
+            health = self.health.update(throw.index, self._health_estimates(verdict, decision))
         return Outcome(decision, self._provisional_note(reason, provisional), verdict, self._follow(decision, verdict),
                        health)
 
@@ -522,8 +526,11 @@ class SwitchDiagnoser:
                     out.append(mode)
         return out
 
-    def _health_estimates(self, verdict: ThrowVerdict) -> dict[str, tuple[float, float]]:
-        """Each tracked parameter as its own hypothesis estimated it in this throw, if the throw could see it.
+    def _health_estimates(self, verdict: ThrowVerdict, decision: str) -> dict[str, tuple[float, float]]:
+        """Each tracked parameter as its own hypothesis estimated it in this throw, if the throw could see it and
+        neither the throw nor the switch (over both directions) was decided as another fault: another fault's
+        hypothesis bends to the decided one's effect (a bearing grown past detection shows as drive friction in the
+        drive-friction hypothesis, which cannot free the bearing that far; a loose bolt as bearing friction).
 
         Once commissioned, the bearing friction counts the chairs' departure from their commissioned level too
         (CHAIRS_AS_BEARING): the diagnosis lets the chairs follow the weather throw by throw, which would also let
@@ -532,6 +539,8 @@ class SwitchDiagnoser:
         out = {}
         for name in TRACKED:
             mode = FAULT_PARAMETERS[name].mode
+            if {verdict.mode, decision} - {"nominal", "unknown", mode}:  # its hypothesis bends to another's effect
+                continue
             reported = verdict.reported.get(mode)
             if reported is not None and name in reported.params and not reported.unobservable:
                 out[name] = (reported.params[name], reported.fit_std[name])
