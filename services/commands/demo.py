@@ -154,7 +154,7 @@ class Outcome:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--switches", type=bounded(int, 1, 50), default=5)
-    parser.add_argument("--throws", type=bounded(int, 2, 1000), default=10,
+    parser.add_argument("--throws", type=bounded(int, 2, 1000), default=12,
                         help="throws per switch (the first 8 commission it, when there are more)")
     parser.add_argument("--speed", type=bounded(float, 0.1, 1000.0, "x real time"), default=2.0)
     parser.add_argument("--out", default="demo.mcap", metavar="F.mcap",
