@@ -150,16 +150,23 @@ class TrendFilter:
             self.p = np.diag([variance, self.q[1, 1] * 1e4])
 
 
+_STALE = object()  # a History's fit before it is computed, or after an estimate came
+Row = tuple[float, float, float, int]  # a History's: throw, value, its fit's variance, how many estimates it merges
+
+
+def _merged(a: Row, b: Row) -> Row:
+    """Two rows of a History as one: throw, value and variance averaged by their counts, the counts added."""
+    n = a[3] + b[3]
+    return (*((x * a[3] + y * b[3]) / n for x, y in zip(a[:3], b[:3])), n)
+
+
 @dataclass
 class History:
     """A parameter's estimates over the throws: (throw, value, its fit's variance, how many estimates it merges)."""
 
-    rows: list[tuple[float, float, float, int]] = field(default_factory=list)
+    rows: list[Row] = field(default_factory=list)
     pending: tuple[float, float, float] | None = None  # the latest estimate, when the filter took it for an outlier
-    _line: object = field(default=None, repr=False, compare=False)  # the latest fit, _STALE after an estimate came
-
-    def __post_init__(self) -> None:
-        self._line = _STALE
+    _line: object = field(default=_STALE, repr=False, compare=False)  # the latest fit (fit_broken_stick's)
 
     def record(self, throw: float, value: float, variance: float, outlier: bool, step: bool) -> None:
         """One estimate, unless the filter took it for an outlier: that one waits, and counts only if the next one
@@ -175,8 +182,7 @@ class History:
         self._line = _STALE
         if len(self.rows) > HISTORY:  # halve the resolution of the older half, keep the recent half whole
             old, recent = self.rows[:HISTORY // 2], self.rows[HISTORY // 2:]
-            merged = [tuple((a * n1 + b * n2) / (n1 + n2) for a, b in zip(r1[:3], r2[:3])) + (n1 + n2,)
-                      for r1, r2, n1, n2 in ((r1, r2, r1[3], r2[3]) for r1, r2 in zip(old[::2], old[1::2]))]
+            merged = [_merged(a, b) for a, b in zip(old[::2], old[1::2])]
             self.rows = merged + old[len(merged) * 2:] + recent
 
     def broken_stick(self, now: float) -> tuple[np.ndarray, np.ndarray, float] | None:
@@ -199,9 +205,6 @@ class History:
         rows = [(float(t), float(v), float(var), int(n)) for t, v, var, n in data["rows"]]
         pending = data.get("pending")
         return cls(rows, None if pending is None else tuple(float(x) for x in pending))
-
-
-_STALE = object()
 
 
 def _suffix(values: np.ndarray) -> np.ndarray:
@@ -340,8 +343,9 @@ class HealthTracker:
             step = False
             if name in estimates:
                 value, std = estimates[name]
-                outlier, step = tracker.update(value, max(std, 1e-12) ** 2)
-                self.histories[name].record(throw_index, value, max(std, 1e-12) ** 2, outlier, step)
+                variance = max(std, 1e-12) ** 2
+                outlier, step = tracker.update(value, variance)
+                self.histories[name].record(throw_index, value, variance, outlier, step)
             out[name] = self._health(name, tracker, self.histories[name].broken_stick(throw_index), step)
         ranked = [h for h in out.values() if self.filters[h.name].updates]
         worst = min(ranked, key=lambda h: (h.throws_to_limit if h.throws_to_limit is not None else np.inf,
@@ -356,11 +360,11 @@ class HealthTracker:
         limit = self.limits[name]
         if tracker.updates == 0:
             return ParameterHealth(name, 0.0, float("inf"), 0.0, float("inf"), limit, None, None, None, "ok")
+        model_error = self.model_error.get(name, 0.0)
         level = float(tracker.x[0])
-        level_std = float(np.hypot(np.sqrt(max(tracker.p[0, 0], 0.0)), self.model_error.get(name, 0.0)))
+        level_std = float(np.hypot(np.sqrt(max(tracker.p[0, 0], 0.0)), model_error))
         mean, covariance, stray = line if line is not None else (tracker.x, tracker.p, 0.0)
         slope, slope_std = float(mean[1]), float(np.sqrt(max(covariance[1, 1], 0.0)))
-        model_error = self.model_error.get(name, 0.0)
         if level >= limit:
             to_limit, low, high = 0.0, 0.0, 0.0
         elif line is None:  # no trend shown yet (the filter's slope is reported, not extrapolated)
