@@ -78,15 +78,16 @@ def box_plot(results: dict[str, dict[str, list[float]]], path: Path) -> None:
 
 
 STRESS_RATES_HZ = (10.0, 25.0, 50.0, 100.0)
+STRESS_SUBSTEPS = (ReducedParams().substeps, 2 * ReducedParams().substeps)  # the diagnosis's, and twice as many
 
 
 def stress(representation, weights, series: int) -> dict:
-    """Divergences of one representation over the stress set and fault extremes, per rate and substeps."""
-    from railswitch.services.core.fleet_diagnoser import DIAGNOSIS_SUBSTEPS
-
+    """Divergences of one representation over the stress set and fault extremes, per rate and substeps: one
+    step per sample (or more where a sample is longer than the longest step, ReducedParams.max_step_s), as the
+    diagnosis integrates (its ReducedParams keep the default substeps), and twice that."""
     runs, diverged, worst = {}, 0, 0.0
     for rate in STRESS_RATES_HZ:
-        for substeps in sorted({1, DIAGNOSIS_SUBSTEPS}):
+        for substeps in STRESS_SUBSTEPS:
             reduced = ReducedSwitch(representation, weights, ReducedParams(substeps=substeps), rate_hz=rate,
                                     compiler=MachineCode())
             found = divergence(reduced, series)

@@ -1,0 +1,26 @@
+"""Every name a benchmark imports from the package exists, including imports made inside functions: a renamed or
+removed name must fail here, not halfway through a long benchmark run (`benchmarks.reduced --stress` once did)."""
+import ast
+import importlib
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+BENCHMARKS = sorted((Path(__file__).resolve().parents[2] / "benchmarks").glob("*.py"))
+
+
+def imported_names(path: Path) -> list[tuple[str, str]]:
+    """(module, name) of every `from railswitch... import name` anywhere in the file."""
+    tree = ast.parse(path.read_text())
+    return [(node.module, alias.name) for node in ast.walk(tree)
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("railswitch")
+            for alias in node.names]
+
+
+@pytest.mark.parametrize("path", BENCHMARKS, ids=lambda p: p.stem)
+def test_benchmark_imports_resolve(path):
+    for module, name in imported_names(path):
+        target = importlib.import_module(module)
+        assert hasattr(target, name) or importlib.util.find_spec(f"{module}.{name}") is not None, \
+            f"{path.name}: {module} has no {name}"
