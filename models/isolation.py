@@ -13,7 +13,13 @@ A fault persists, so its evidence adds up over the throws that can see it: the
 statistics of the last k such throws (k up to EVIDENCE_THROWS) are summed and held
 against the chi-square critical value of their summed degrees of freedom at the
 same false-alarm rate (shared between the k tried), so a fault that each of two
-throws shows at two thirds of the one-throw threshold is found. A bolt only drives
+throws shows at two thirds of the one-throw threshold is found. Only what a throw's
+own samples add is summed: the part of a fit's gain that comes from its priors (a
+hypothesis that frees a parameter the nominal one holds to the population, or to the
+switch's baseline, saves that prior's charge) is the same knowledge in every throw,
+so it counts once, in the latest throw. Summed, it made a healthy switch whose chairs
+are two standard deviations drier than the population's read as a missing bearing
+after three throws that each showed it at half the threshold. A bolt only drives
 the blades in one direction (the left bolt from left to right), so a throw can show
 only the bolt that drives it.
 
@@ -47,6 +53,7 @@ class Evidence:
     ratio: float  # above 1: detected
     statistic: float = 0.0
     dof: int = 1
+    own: float = 0.0  # the statistic without the priors' part: what this throw's samples add to later throws'
 
     @property
     def detected(self) -> bool:
@@ -55,15 +62,16 @@ class Evidence:
 
 def accumulated(latest: Evidence, earlier: list[Evidence]) -> Evidence:
     """`latest` with its ratio the best of this throw's own test and the sums over it and the throws before
-    (most recent first), each against chi-square at FALSE_ALARM_RATE shared by the windows tried."""
+    (most recent first; their samples' part only), each against chi-square at FALSE_ALARM_RATE shared by the
+    windows tried."""
     best = latest.ratio
     windows = min(len(earlier), EVIDENCE_THROWS - 1)
     total, dof = latest.statistic, latest.dof
     for previous in earlier[:windows]:
-        total, dof = total + previous.statistic, dof + previous.dof
+        total, dof = total + previous.own, dof + previous.dof
         critical = special.chdtri(dof, FALSE_ALARM_RATE / EVIDENCE_THROWS)  # chi-square's upper quantile
         best = max(best, total / critical)
-    return Evidence(latest.mode, best, latest.statistic, latest.dof)
+    return Evidence(latest.mode, best, latest.statistic, latest.dof, latest.own)
 
 
 def evidence(estimates: dict[str, Estimate], mode: str, model_gain: float = 0.0) -> Evidence:
@@ -76,11 +84,14 @@ def evidence(estimates: dict[str, Estimate], mode: str, model_gain: float = 0.0)
     p = len(MODE_PARAMETERS[mode])
     n = fitted.effective_samples
     gain = nominal.objective - fitted.objective - MODEL_ERROR_MARGIN * model_gain
+    saved = max((nominal.objective - nominal.mse) - (fitted.objective - fitted.mse), 0.0)  # priors' charge saved
     if n <= p + 1 or fitted.mse <= 0:
-        return Evidence(mode, 0.0 if gain <= 0 else np.inf, 0.0 if gain <= 0 else np.inf, p)
-    f = max(gain, 0.0) / p / (fitted.mse / (n - p))
+        found = 0.0 if gain <= 0 else np.inf
+        return Evidence(mode, found, found, p, 0.0 if gain - saved <= 0 else np.inf)
+    scale = p * fitted.mse / (n - p)
+    f = max(gain, 0.0) / scale
     critical = special.fdtri(p, n - p, 1.0 - FALSE_ALARM_RATE / EVIDENCE_THROWS)  # F's quantile
-    return Evidence(mode, f / critical, p * f, p)
+    return Evidence(mode, f / critical, p * f, p, p * max(gain - saved, 0.0) / scale)
 
 
 def candidate_modes(direction: str) -> list[str]:

@@ -378,11 +378,29 @@ class SwitchDiagnoser:
 
     def _bounds(self, direction: str, name: str) -> tuple[float, float]:
         """Where a nuisance or baselined parameter may go at all: the population's credible range, or
-        BOUND_SIGMAS of the switch's own baseline once commissioned."""
+        BOUND_SIGMAS of the switch's own baseline once commissioned. The chairs, followed once commissioned,
+        may also go BOUND_SIGMAS of their drift beyond their recent level (within the plant's range): chairs
+        that dry out slowly leave the population's range, and there their drying must not become a fault."""
+        drift = self._drift_prior()
+        if name == DRIFTING and drift is not None:
+            low, high = self.prior.bounds[name]
+            physical = PLANT_PARAMETERS[name]
+            mean, std = drift
+            return (max(min(low, float(np.exp(mean - BOUND_SIGMAS * std))), physical.low),
+                    min(max(high, float(np.exp(mean + BOUND_SIGMAS * std))), physical.high))
         if name not in BASELINED or not self.baseline.complete:
             return self.prior.bounds[name]
         mean, std = self._prior(direction, name)
         return mean - BOUND_SIGMAS * std, mean + BOUND_SIGMAS * std
+
+    def _drift_prior(self) -> tuple[float, float] | None:
+        """Once commissioned, the chairs' prior on log(value): their recent level, spread by DRIFT and by how
+        their estimates scatter from throw to throw on the healthy switch."""
+        if not self.baseline.complete or DRIFTING not in self.baseline.recent:
+            return None
+        recent = max(self.baseline.recent[DRIFTING], self.prior.bounds[DRIFTING][0])
+        scatter = max(self.baseline.level(d, DRIFTING)[1] for d in DIRECTIONS)  # its throw-to-throw estimates
+        return float(np.log(recent)), float(np.hypot(DRIFT, scatter / recent))
 
     def _gains(self, direction: str) -> dict[str, float]:
         return self.baseline.gains(direction) if self.baseline.complete else self.prior.gains.get(direction, {})
@@ -411,10 +429,9 @@ class SwitchDiagnoser:
         bounds = {name: self._bounds(direction, name) for name in (*FOLLOWED, *SATURATION, *BASELINED)}
         prior = {**{name: self.prior.prior[name] for name in (*FOLLOWED, *SATURATION)},
                  **{name: self._prior(direction, name) for name in BASELINED}}
-        if self.baseline.complete and DRIFTING in self.baseline.recent:
-            recent = max(self.baseline.recent[DRIFTING], self.prior.bounds[DRIFTING][0])
-            scatter = max(self.baseline.level(d, DRIFTING)[1] for d in DIRECTIONS)  # its throw-to-throw estimates
-            prior[DRIFTING] = (float(np.log(recent)), float(np.hypot(DRIFT, scatter / recent)))  # on log(value)
+        drift = self._drift_prior()
+        if drift is not None:
+            prior[DRIFTING] = drift
         healthy = {name: bounds[name] for name in (*FOLLOWED, *BASELINED)}
         logs = self._log_prior()
         b0, c0 = self.level(direction, "bearing_friction"), self.level(direction, "motor.coulomb_friction_nm")

@@ -42,6 +42,18 @@ def test_a_healthy_switch_unlike_the_model_stays_nominal_once_commissioned(diagn
     assert [d.decision for d in diagnoses] == ["nominal"] * len(diagnoses)
 
 
+def test_chairs_drying_out_past_the_population_after_commissioning_stay_a_healthy_switch(diagnoser, plant):
+    # Chairs 1.75 times as dry as nominal at commissioning, twice that twelve throws later: beyond what the
+    # population's chairs are (credible up to about 2.3 times nominal), still a healthy switch.
+    start = 0.035
+    changes = {COMMISSIONING + k: (None, {"rail.chair_friction_coefficient": start * (1 + (k + 1) / 12)})
+               for k in range(12)}
+    diagnoses = run_switch(diagnoser, plant, "drying", own={"rail.chair_friction_coefficient": start},
+                           changes=changes, throws=COMMISSIONING + 12)
+    assert diagnoses[COMMISSIONING - 1].commissioning.state == "commissioned"
+    assert [d.decision for d in diagnoses] == ["nominal"] * len(diagnoses)
+
+
 def test_gearbox_wear_growing_after_commissioning_is_drive_friction_not_a_rail_fault(diagnoser, plant):
     changes = {COMMISSIONING + k: ({"drive_friction_nm": 0.04 * (k + 1)}, None) for k in range(4)}
     diagnoses = run_switch(diagnoser, plant, "wearing", own={}, changes=changes, throws=COMMISSIONING + 4)

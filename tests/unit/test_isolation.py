@@ -14,8 +14,21 @@ def test_effective_sample_count_is_the_count_for_white_noise_and_small_for_smoot
     assert effective_samples(smooth) < 100
 
 
-def _estimate(mode: str, objective: float, values: dict[str, float] | None = None) -> Estimate:
-    return Estimate(mode, {}, {}, values or {}, objective, objective, 1, np.zeros((0, 3)), 500.0)
+def _estimate(mode: str, objective: float, values: dict[str, float] | None = None, mse: float | None = None) -> Estimate:
+    return Estimate(mode, {}, {}, values or {}, objective if mse is None else mse, objective, 1, np.zeros((0, 3)),
+                    500.0)
+
+
+def _three_throws(nominal: tuple[float, float], bearing: tuple[float, float]) -> list[float]:
+    """The bearing's evidence ratio after each of three throws alike: (objective, data MSE) of each fit."""
+    earlier, ratios = {}, []
+    for _ in range(3):
+        estimates = {"nominal": _estimate("nominal", nominal[0], mse=nominal[1]),
+                     "missing_bearing": _estimate("missing_bearing", bearing[0], mse=bearing[1])}
+        _, found = judge("left_to_right", estimates, earlier=earlier)
+        earlier = {m: [e, *earlier.get(m, [])] for m, e in found.items()}
+        ratios.append(found["missing_bearing"].ratio)
+    return ratios
 
 
 def test_a_detected_bolt_within_the_setting_tolerance_is_an_adjustment_not_a_fault():
@@ -32,3 +45,14 @@ def test_the_switch_diagnoser_calls_bolts_within_tolerance_negligible_and_larger
     large = _estimate("right_bolt", 0.5, {"right_bolt_offset": BOLT_TOLERANCE + 0.001})
     assert switch.negligible({"left_bolt": small, "right_bolt": large}) == ["left_bolt"]
     assert switch.negligible({"left_bolt": _estimate("left_bolt", 0.5, {"left_bolt_offset": 0.0065})}) == []
+
+
+def test_evidence_from_the_samples_adds_up_over_throws_but_a_prior_saved_counts_once():
+    # Each throw shows the bearing at about half the one-throw threshold (F = 6.5 against 13.1 at 500 samples).
+    # From its samples: three such throws together are a detection (the chi-square of their sum).
+    from_samples = _three_throws(nominal=(1.013, 1.013), bearing=(1.0, 1.0))
+    assert from_samples[0] < 0.6 and from_samples[-1] > 1.0
+    # From the prior the nominal fit pays and the bearing's does not (a switch whose chairs are drier than the
+    # population's: the same knowledge in every throw), the same gain never adds up.
+    from_prior = _three_throws(nominal=(1.013, 1.0), bearing=(1.0, 1.0))
+    assert from_prior[0] == from_samples[0] and max(from_prior) < 0.6
