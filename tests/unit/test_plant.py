@@ -156,6 +156,18 @@ def test_noise_is_relative_to_nominal_peaks_and_seeded(plant):
     assert np.std(noisy_a - clean) == pytest.approx(0.01 * peak, rel=0.2)
 
 
+def test_a_plant_gives_the_same_throw_whatever_ran_before_it_in_the_process(plant):
+    """Same inputs, same bits, on one machine: nothing a plant builds or caches (its integrators, the noise
+    peaks) leaks from one plant, rate or run into another."""
+    first = SwitchSimulation(Plant()).throw().samples.signals.current_a
+    looser = SwitchSimulation(Plant(reltol=1e-3, abstol=1e-4)).throw().samples.signals.current_a
+    assert not np.array_equal(looser, first)  # each plant integrates at its own tolerances
+    SwitchSimulation(plant, faults={"obstacle_friction": 1e5, "obstacle_position": 1.1}, rate_hz=25.0).throw()
+    SwitchSimulation(plant, own={"motor.supply_v": 100.0}, noise_rel=0.01, seed=3).throw()
+    again = SwitchSimulation(plant).throw().samples.signals.current_a
+    np.testing.assert_array_equal(again, first)
+
+
 def test_closing_blades_follow_the_rod_and_are_never_snapped_in_by_the_lock(plant):
     for throw in throws(plant, 2):
         x = throw.samples.rail_position_m
