@@ -198,6 +198,12 @@ class Estimate:
     iterations: int
     residual: np.ndarray  # scaled residuals of the signals measured (current, angle, velocity), one column each
     effective_samples: float
+    prior_weight: float = 0.0  # w of HypothesisSpec: what one unit of (value - mean)^2 / std^2 adds to objective
+
+    @property
+    def prior_charge(self) -> float:
+        """What the priors charge this fit, in units of (value - mean)^2 / std^2 summed (0 without priors)."""
+        return (self.objective - self.mse) / self.prior_weight if self.prior_weight > 0 else 0.0
 
 
 @dataclass(frozen=True)
@@ -383,14 +389,15 @@ class ThrowEstimator:
         n_eff = effective_samples(r.reshape(len(throw.rows), -1).T)
         std = self._std(solution.jacobian, r, low, high, prior_weight, n_eff)
         return self._estimate(spec.mode, at(solution.z), free, dict(zip(free, std)), r, solution.cost,
-                              solution.iterations, len(throw.rows), n_eff)
+                              solution.iterations, len(throw.rows), n_eff, prior_weight if prior.rows else 0.0)
 
     def _estimate(self, mode: str, theta: np.ndarray, free: list[str], std: dict[str, float], r: np.ndarray,
-                  objective: float, iterations: int, signals: int, n_eff: float | None = None) -> Estimate:
+                  objective: float, iterations: int, signals: int, n_eff: float | None = None,
+                  prior_weight: float = 0.0) -> Estimate:
         values = dict(zip(PARAMETERS, (float(v) for v in theta)))
         residual = r.reshape(signals, -1).T * np.sqrt(r.size)
         return Estimate(mode, {n: values[n] for n in free}, std, values, float(r @ r), objective, iterations, residual,
-                        effective_samples(residual) if n_eff is None else n_eff)
+                        effective_samples(residual) if n_eff is None else n_eff, prior_weight)
 
     @staticmethod
     def _std(jacobian: np.ndarray, r: np.ndarray, low: np.ndarray, high: np.ndarray, prior_weight: float,

@@ -77,21 +77,25 @@ def accumulated(latest: Evidence, earlier: list[Evidence]) -> Evidence:
 def evidence(estimates: dict[str, Estimate], mode: str, model_gain: float = 0.0) -> Evidence:
     """F test of `mode` against the nominal fit, on the effective number of residuals.
 
-    `model_gain` is what the mode's fit gains on healthy throws by absorbing model
-    error (measured at commissioning); only the gain beyond twice that counts.
+    The samples' part of the statistic is the fit's gain in MSE over the residual variance
+    per effective sample; the priors' part is what the mode's fit saves of the priors' charge,
+    already a sum of squared standard scores (a nuisance the nominal fit must hold three
+    population standard deviations out adds 9, however large the model's error). `model_gain`
+    is what the mode's fit gains on healthy throws by absorbing model error (measured at
+    commissioning); only the gain beyond twice that counts.
     """
     fitted, nominal = estimates[mode], estimates["nominal"]
     p = len(MODE_PARAMETERS[mode])
     n = fitted.effective_samples
-    gain = nominal.objective - fitted.objective - MODEL_ERROR_MARGIN * model_gain
-    saved = max((nominal.objective - nominal.mse) - (fitted.objective - fitted.mse), 0.0)  # priors' charge saved
+    data = nominal.mse - fitted.mse - MODEL_ERROR_MARGIN * model_gain
+    prior = nominal.prior_charge - fitted.prior_charge  # chi-square-like already: sum of (value - mean)^2 / std^2
     if n <= p + 1 or fitted.mse <= 0:
-        found = 0.0 if gain <= 0 else np.inf
-        return Evidence(mode, found, found, p, 0.0 if gain - saved <= 0 else np.inf)
-    scale = p * fitted.mse / (n - p)
-    f = max(gain, 0.0) / scale
+        found = 0.0 if data + prior <= 0 else np.inf
+        return Evidence(mode, found, found, p, 0.0 if data + min(prior, 0.0) <= 0 else np.inf)
+    samples = data / (fitted.mse / (n - p))  # the samples' part, p times F
+    statistic = max(samples + prior, 0.0)
     critical = special.fdtri(p, n - p, 1.0 - FALSE_ALARM_RATE / EVIDENCE_THROWS)  # F's quantile
-    return Evidence(mode, f / critical, p * f, p, p * max(gain - saved, 0.0) / scale)
+    return Evidence(mode, statistic / p / critical, statistic, p, max(samples + min(prior, 0.0), 0.0))
 
 
 def candidate_modes(direction: str) -> list[str]:
@@ -100,8 +104,9 @@ def candidate_modes(direction: str) -> list[str]:
 
 
 def healthy_gains(estimates: dict[str, Estimate]) -> dict[str, float]:
-    """What each mode's fit gains over the nominal one (0 at least): on a healthy throw, model error it absorbs."""
-    return {mode: max(estimates["nominal"].objective - estimates[mode].objective, 0.0) for mode in estimates
+    """What each mode's fit gains in MSE over the nominal one (0 at least): on a healthy throw, model error it
+    absorbs."""
+    return {mode: max(estimates["nominal"].mse - estimates[mode].mse, 0.0) for mode in estimates
             if mode in MODE_PARAMETERS}
 
 

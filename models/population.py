@@ -25,8 +25,11 @@ Where each spread comes from:
   the heel's thinned section).
 
 These are engineering assumptions where no figure is cited; they are the population the fleet
-benchmark draws and the diagnosis is judged against. `credible_range` spans the 0.5 % and 99.5 %
-quantiles of 20 000 draws.
+benchmark draws and the diagnosis is judged against. `credible_range` spans all but one switch in
+ten thousand on each side (the 0.01 % and 99.99 % quantiles of 20 000 draws): the diagnosis takes it
+as hard limits, where its priors already say how unlikely a value is, so it must not rule out the
+healthy switches of a national fleet (with the 0.5 % and 99.5 % quantiles, one switch in a few dozen
+had some part outside them, never commissioned and stayed a provisional fault).
 """
 from __future__ import annotations
 
@@ -40,6 +43,7 @@ from railswitch.schemas.plant import PLANT_PARAMETERS
 COPPER_PER_K = 0.00393
 REFERENCE_C = 20.0
 NOMINAL = {name: p.nominal for name, p in PLANT_PARAMETERS.items()}
+CREDIBLE_TAIL = 1e-4  # the share of the population beyond each end of a credible range
 
 
 @dataclass(frozen=True)
@@ -83,9 +87,9 @@ def _draws() -> dict[str, np.ndarray]:
 
 
 def credible_range(name: str) -> tuple[float, float]:
-    """What the population lets a plant variable be: its 0.5 % and 99.5 % quantiles."""
+    """What the population lets a plant variable be: its CREDIBLE_TAIL and 1 - CREDIBLE_TAIL quantiles."""
     values = _draws()[name]
-    return float(np.quantile(values, 0.005)), float(np.quantile(values, 0.995))
+    return float(np.quantile(values, CREDIBLE_TAIL)), float(np.quantile(values, 1.0 - CREDIBLE_TAIL))
 
 
 def spread(name: str, log: bool = False) -> tuple[float, float]:

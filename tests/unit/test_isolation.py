@@ -1,5 +1,6 @@
 """Fault detection by F test on the effective number of residuals."""
 import numpy as np
+import pytest
 
 from railswitch.models.estimation import Estimate, effective_samples
 from railswitch.models.isolation import judge
@@ -14,17 +15,19 @@ def test_effective_sample_count_is_the_count_for_white_noise_and_small_for_smoot
     assert effective_samples(smooth) < 100
 
 
-def _estimate(mode: str, objective: float, values: dict[str, float] | None = None, mse: float | None = None) -> Estimate:
+def _estimate(mode: str, objective: float, values: dict[str, float] | None = None, mse: float | None = None,
+              prior_weight: float = 0.0, samples: float = 500.0) -> Estimate:
     return Estimate(mode, {}, {}, values or {}, objective if mse is None else mse, objective, 1, np.zeros((0, 3)),
-                    500.0)
+                    samples, prior_weight)
 
 
-def _three_throws(nominal: tuple[float, float], bearing: tuple[float, float]) -> list[float]:
+def _three_throws(nominal: tuple[float, float], bearing: tuple[float, float], prior_weight: float = 0.0) -> list[float]:
     """The bearing's evidence ratio after each of three throws alike: (objective, data MSE) of each fit."""
     earlier, ratios = {}, []
     for _ in range(3):
-        estimates = {"nominal": _estimate("nominal", nominal[0], mse=nominal[1]),
-                     "missing_bearing": _estimate("missing_bearing", bearing[0], mse=bearing[1])}
+        estimates = {"nominal": _estimate("nominal", nominal[0], mse=nominal[1], prior_weight=prior_weight),
+                     "missing_bearing": _estimate("missing_bearing", bearing[0], mse=bearing[1],
+                                                  prior_weight=prior_weight)}
         _, found = judge("left_to_right", estimates, earlier=earlier)
         earlier = {m: [e, *earlier.get(m, [])] for m, e in found.items()}
         ratios.append(found["missing_bearing"].ratio)
@@ -54,5 +57,16 @@ def test_evidence_from_the_samples_adds_up_over_throws_but_a_prior_saved_counts_
     assert from_samples[0] < 0.6 and from_samples[-1] > 1.0
     # From the prior the nominal fit pays and the bearing's does not (a switch whose chairs are drier than the
     # population's: the same knowledge in every throw), the same gain never adds up.
-    from_prior = _three_throws(nominal=(1.013, 1.0), bearing=(1.0, 1.0))
-    assert from_prior[0] == from_samples[0] and max(from_prior) < 0.6
+    from_prior = _three_throws(nominal=(1.013, 1.0), bearing=(1.0, 1.0), prior_weight=0.013 / 6.5)  # saves 6.5
+    assert from_prior[0] == pytest.approx(from_samples[0], rel=0.01) and max(from_prior) < 0.6
+
+
+def test_a_prior_saved_counts_as_its_standard_scores_whatever_the_residual_variance():
+    # The nominal fit holds a nuisance three population standard deviations out (charge 9) on a throw whose
+    # residual variance is a third of the priors' weight: the mode that frees it is not a fault on that alone
+    # (9 < 13.1, the one-throw threshold), and a nuisance five out (25) is.
+    for scores, detected in ((9.0, False), (25.0, True)):
+        weight = 3e-3
+        estimates = {"nominal": _estimate("nominal", 1.0 + weight * scores, mse=1.0, prior_weight=weight),
+                     "drive_friction": _estimate("drive_friction", 1.0, mse=1.0, prior_weight=weight)}
+        assert (judge("left_to_right", estimates)[0] == "drive_friction") == detected
