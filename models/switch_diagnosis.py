@@ -376,12 +376,12 @@ class SwitchDiagnoser:
         """Which priors are on log(value): the population's skewed ones; once commissioned, the chairs' drift."""
         return (DRIFTING,) if self.baseline.complete else LOG_PRIOR
 
-    def _bounds(self, direction: str, name: str) -> tuple[float, float]:
+    def _bounds(self, direction: str, name: str, drift: tuple[float, float] | None) -> tuple[float, float]:
         """Where a nuisance or baselined parameter may go at all: the population's credible range, or
-        BOUND_SIGMAS of the switch's own baseline once commissioned. The chairs, followed once commissioned,
-        may also go BOUND_SIGMAS of their drift beyond their recent level (within the plant's range): chairs
-        that dry out slowly leave the population's range, and there their drying must not become a fault."""
-        drift = self._drift_prior()
+        BOUND_SIGMAS of the switch's own baseline once commissioned. The chairs, followed once commissioned
+        (`drift`: their prior, _drift_prior), may also go BOUND_SIGMAS of their drift beyond their recent level
+        (within the plant's range): chairs that dry out slowly leave the population's range, and there their
+        drying must not become a fault."""
         if name == DRIFTING and drift is not None:
             low, high = self.prior.bounds[name]
             physical = PLANT_PARAMETERS[name]
@@ -426,10 +426,10 @@ class SwitchDiagnoser:
         bolt = DRIVING_BOLT[direction]
         other = DRIVING_BOLT[OTHER_DIRECTION[direction]]
         held = {MODE_PARAMETERS[other][0]: self.background(direction)}
-        bounds = {name: self._bounds(direction, name) for name in (*FOLLOWED, *SATURATION, *BASELINED)}
+        drift = self._drift_prior()
+        bounds = {name: self._bounds(direction, name, drift) for name in (*FOLLOWED, *SATURATION, *BASELINED)}
         prior = {**{name: self.prior.prior[name] for name in (*FOLLOWED, *SATURATION)},
                  **{name: self._prior(direction, name) for name in BASELINED}}
-        drift = self._drift_prior()
         if drift is not None:
             prior[DRIFTING] = drift
         healthy = {name: bounds[name] for name in (*FOLLOWED, *BASELINED)}
