@@ -99,16 +99,31 @@ OBSTACLE_GRID = tuple({"obstacle_position": round(float(p), 3), "obstacle_fricti
 class ErrorModel:
     """The reduced model's error on each fault parameter, measured against the plant over the population
     (`railswitch calibrate`): a bias (its median, constant + proportional to the value), taken off every
-    estimate, and what is left as a standard deviation, absolute + relative * |value|. It does not average out
-    over throws."""
+    estimate, and what is left as a standard deviation, absolute + relative * |value|, for an estimate
+    combined over `throws[name]` throws. Part of the error differs from throw to throw (the two directions see
+    an obstacle differently; the weather moves the nuisances) and averages out; the rest is the same in every
+    throw and does not. `one_absolute` and `one_relative` give the error of a single throw's estimate, and the
+    two envelopes split into a common part and a per-throw part that falls as 1/sqrt(throws)."""
 
     absolute: dict[str, float] = field(default_factory=dict)
     relative: dict[str, float] = field(default_factory=dict)
     bias: dict[str, float] = field(default_factory=dict)
     bias_relative: dict[str, float] = field(default_factory=dict)
+    one_absolute: dict[str, float] = field(default_factory=dict)
+    one_relative: dict[str, float] = field(default_factory=dict)
+    throws: dict[str, float] = field(default_factory=dict)  # how many throws the envelope above was measured on
 
-    def std(self, name: str, value: float) -> float:
-        return self.absolute.get(name, 0.0) + self.relative.get(name, 0.0) * abs(value)
+    def std(self, name: str, value: float, throws: int = 1) -> float:
+        """The model's error of an estimate combined over `throws` throws that see the parameter."""
+        many = self.absolute.get(name, 0.0) + self.relative.get(name, 0.0) * abs(value)
+        measured = self.throws.get(name, 1.0)
+        if name not in self.one_absolute or measured <= 1.0:
+            return many
+        one = self.one_absolute[name] + self.one_relative.get(name, 0.0) * abs(value)
+        if one <= many:  # nothing averages out (within the calibration's sampling)
+            return many
+        per_throw = min(one**2, (one**2 - many**2) * measured / (measured - 1.0))  # variance of the varying part
+        return float(np.sqrt(one**2 - per_throw + per_throw / max(throws, 1)))
 
     def corrected(self, name: str, estimate: float) -> float:
         """The estimate less the model's bias: (estimate - b) / (1 + r) inverts estimate = truth(1 + r) + b."""
@@ -607,7 +622,7 @@ class SwitchDiagnoser:
 
     def combine(self, mode: str, verdicts: list[ThrowVerdict]) -> Combined:
         """A mode's parameters over several throws: the fits weighted by their variances, the model's error
-        (the same in every throw) added once."""
+        added as it stands after that many throws (its common part once, its per-throw part averaged)."""
         params, std, fit_std = {}, {}, {}
         for name in MODE_PARAMETERS[mode]:
             values = np.array([v.reported[mode].params[name] for v in verdicts])
@@ -615,7 +630,7 @@ class SwitchDiagnoser:
             weights = 1.0 / fit**2
             mean = float(np.sum(weights * values) / np.sum(weights))
             params[name], fit_std[name] = mean, float(np.sqrt(1.0 / np.sum(weights)))
-            std[name] = float(np.hypot(fit_std[name], self.errors.std(name, mean)))
+            std[name] = float(np.hypot(fit_std[name], self.errors.std(name, mean, len(verdicts))))
         return Combined(mode, params, std, len(verdicts), verdicts[0].index, fit_std)
 
     # -- persistence ------------------------------------------------------------------------------

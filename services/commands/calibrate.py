@@ -25,7 +25,9 @@ def run(args: argparse.Namespace) -> int:
             ports = ", ".join(f"{d.replace('_', ' ')}: gain {port[d]['gain']:.4f}, offset {port[d]['offset_s_m']:.1f} N·s/m"
                               for d in DIRECTIONS)
             model = ", ".join(f"{n} bias {errors['bias'][n]:+.3g} {FAULT_PARAMETERS[n].unit} {errors['bias_relative'][n]:+.1%}, "
-                              f"std {errors['absolute'][n]:.3g} {FAULT_PARAMETERS[n].unit} + {errors['relative'][n]:.1%}"
+                              f"std {errors['absolute'][n]:.3g} {FAULT_PARAMETERS[n].unit} + {errors['relative'][n]:.1%} "
+                              f"over {errors['throws'][n]:g} throws, {errors['one_absolute'][n]:.3g} "
+                              f"{FAULT_PARAMETERS[n].unit} + {errors['one_relative'][n]:.1%} over one"
                               for n in errors["absolute"])
             print(f"{name}: bearing port {ports}; model error {model} -> {path}")
     except OSError as error:

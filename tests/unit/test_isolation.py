@@ -70,3 +70,19 @@ def test_a_prior_saved_counts_as_its_standard_scores_whatever_the_residual_varia
         estimates = {"nominal": _estimate("nominal", 1.0 + weight * scores, mse=1.0, prior_weight=weight),
                      "drive_friction": _estimate("drive_friction", 1.0, mse=1.0, prior_weight=weight)}
         assert (judge("left_to_right", estimates)[0] == "drive_friction") == detected
+
+
+def test_the_model_error_part_that_differs_between_throws_averages_out_and_the_common_part_stays():
+    """Calibrated on one throw (3 mm) and on four combined (2 mm): the common part is what four throws leave
+    of it beyond a quarter of the varying part's variance."""
+    errors = ErrorModel(absolute={"left_bolt_offset": 0.002}, one_absolute={"left_bolt_offset": 0.003},
+                        throws={"left_bolt_offset": 4.0})
+    assert errors.std("left_bolt_offset", 0.05, throws=1) == pytest.approx(0.003)
+    assert errors.std("left_bolt_offset", 0.05, throws=4) == pytest.approx(0.002)
+    varying = (0.003**2 - 0.002**2) * 4 / 3
+    assert errors.std("left_bolt_offset", 0.05, throws=10_000) == pytest.approx(np.sqrt(0.003**2 - varying), rel=1e-3)
+    # a calibration from before the split: the one envelope at any number of throws
+    assert ErrorModel(absolute={"left_bolt_offset": 0.002}).std("left_bolt_offset", 0.05, throws=1) == 0.002
+    # one throw no worse than several: nothing averages out
+    same = ErrorModel(absolute={"x": 0.002}, one_absolute={"x": 0.0015}, throws={"x": 4.0})
+    assert same.std("x", 0.0, throws=1) == same.std("x", 0.0, throws=9) == 0.002
