@@ -35,6 +35,7 @@ from railswitch.models.switch import SwitchSimulation
 from railswitch.schemas import RAIL_MODELS, Diagnosis
 from railswitch.services.adapters.recordings import load_recording
 from railswitch.models.switch_diagnosis import COMMISSIONING_THROWS
+from railswitch.services.adapters.compiled import compiled_plant
 from railswitch.services.core.fleet_diagnoser import Diagnoser, diagnose_messages, throw_input
 from railswitch.services.core.throw_cutter import CutThrow
 from railswitch.services.core.switch_messages import SimulatedThrows
@@ -228,7 +229,7 @@ def main() -> None:
     diagnoser.warm_up()
     build_s = time.perf_counter() - start
     timed = Timed(diagnoser)
-    plant = Plant()
+    plant = compiled_plant()
     latencies: list[float] = []
     paper, worst = paper_scenarios(timed, latencies, verbose)
     cases = draw_cases(seed, args.per_mode, args.nominal)

@@ -17,10 +17,10 @@ import numpy as np
 
 from benchmarks.common import emit, parser, pin_to_one_core
 from railswitch.models.estimation import DRIVING_BOLT
-from railswitch.models.plant import Plant
 from railswitch.models.population import draw_switch
 from railswitch.models.switch import SwitchSimulation
 from railswitch.schemas import RAIL_MODELS, Diagnosis
+from railswitch.services.adapters.compiled import compiled_plant
 from railswitch.services.core.calibration import fault_cases
 from railswitch.services.core.fleet_diagnoser import Diagnoser
 from railswitch.services.core.switch_messages import SimulatedThrows
@@ -84,7 +84,7 @@ def main() -> None:
     args = p.parse_args()
     core = pin_to_one_core()
     seed = args.seed if args.seed is not None else int(np.random.SeedSequence().entropy % 2**31)
-    plant = Plant()
+    plant = compiled_plant()
     diagnoser = Diagnoser(args.model)
     diagnoser.warm_up()
     commissioning = 2 * 4

@@ -30,11 +30,11 @@ import numpy as np
 
 from benchmarks.common import emit, parser
 from railswitch.models.health import DEFAULT_LIMITS, STATES
-from railswitch.models.plant import Plant
 from railswitch.models.population import draw_switch
 from railswitch.models.switch import SwitchSimulation
 from railswitch.models.switch_diagnosis import COMMISSIONING_THROWS
 from railswitch.schemas import RAIL_MODELS
+from railswitch.services.adapters.compiled import compiled_plant
 from railswitch.services.core.fleet_diagnoser import Diagnoser
 from railswitch.services.core.switch_messages import SimulatedThrows
 
@@ -102,7 +102,7 @@ def run_switch(args: tuple[Plan, str, float]) -> dict:
     own = draw_switch(plan.seed).plant
     rng = np.random.default_rng(plan.seed)
     phase, drift = float(rng.uniform(0, 2 * np.pi)), float(rng.uniform(0.0, 0.2))
-    sim = SwitchSimulation(Plant(), own=own, noise_rel=noise, seed=plan.seed)
+    sim = SwitchSimulation(compiled_plant(), own=own, noise_rel=noise, seed=plan.seed)
     source = SimulatedThrows(plan.switch_id, sim)
     rows = []
     for throw, value in enumerate(plan.truth):

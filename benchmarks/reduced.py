@@ -33,7 +33,7 @@ from railswitch.models.training import RATE_HZ, VALIDATION_SEEDS, train  # noqa:
 from railswitch.models.validation import divergence, plant_series, validate  # noqa: E402
 from railswitch.schemas import RAIL_MODELS  # noqa: E402
 from railswitch.services.adapters import model_store  # noqa: E402
-from railswitch.services.adapters.compiled import MachineCode  # noqa: E402
+from railswitch.services.adapters.compiled import MachineCode, compiled_plant  # noqa: E402
 
 SAMPLES = int(THROW_DURATION_S * RATE_HZ)
 
@@ -109,7 +109,7 @@ def main() -> None:
     pin_to_one_core()
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
-    plant = Plant()
+    plant = compiled_plant()
     plant_seconds = plant_two_throws_seconds(plant)
     series = plant_series(plant, VALIDATION_SEEDS)
     result, mses = {}, {}

@@ -12,6 +12,7 @@ serves every switch of a fleet and a cold night costs nothing to simulate.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
 
@@ -64,8 +65,12 @@ def nominal_values(params: PlantParams) -> dict[str, float]:
 class Plant:
     """State layout, symbolic equations and integrators of the high-fidelity model."""
 
-    def __init__(self, params: PlantParams = PlantParams(), *, reltol: float = 1e-6, abstol: float = 1e-7):
+    def __init__(self, params: PlantParams = PlantParams(), *, reltol: float = 1e-6, abstol: float = 1e-7,
+                 compiler: Callable[..., list[ca.Function]] | None = None):
+        """`compiler` (services/adapters/compiled.py MachineCode) turns the equations into machine code, their
+        Jacobian with them (`compiler([f], with_jacobian=True)`): the same numbers, CVODES spends less per step."""
         self.params = params
+        self.compiler = compiler
         self.beam = RailBeam(params.rail)
         self.nodes = params.rail.nodes
         self.n_states = 2 * self.nodes + 6
@@ -117,6 +122,10 @@ class Plant:
 
         ode = ca.vertcat(v, acceleration, d_current, omega, d_omega, d_integral, lock.d_hooks)
         self._dae = {"x": x, "p": ca.vertcat(theta, phi), "u": control, "t": t, "ode": ode}
+        none = ca.SX(0, 1)
+        dae = ca.Function("railswitch_plant_dae", [t, x, ca.SX.sym("z", 0), self._dae["p"], control],
+                          [ode, none, none, none], ca.dyn_in(), ca.dyn_out())
+        self._dae_function = self.compiler([dae], with_jacobian=True)[0] if self.compiler else dae
         machine_force = drive_force + lock.force_n  # everything the point machine applies at the drive point
         outputs = ca.vertcat(current, angle, omega, rail_m, v[n - 1], acceleration[n - 1], machine_force, rod_m)
         self._outputs = ca.Function("outputs", [x, theta, phi], [outputs])
@@ -146,7 +155,7 @@ class Plant:
         opts = {**self.tolerances, "linear_solver": "csparse", "max_num_steps": 200_000,
                 "disable_internal_warnings": True}
         grid = [dt_s * (k + 1) for k in range(steps)]
-        return ca.integrator("plant", "cvodes", self._dae, 0.0, grid, opts)
+        return ca.integrator("plant", "cvodes", self._dae_function, 0.0, grid, opts)
 
     # -- simulation --------------------------------------------------------------------------
     def rest_state(self, rail_position_m: float, motor_angle_rad: float = 0.0,
@@ -215,4 +224,5 @@ class Plant:
             "jacobian_nonzeros": int(self.ode_function().sparsity_out("jac_x").nnz()),
             "rail_tip_stiffness_n_m": round(float(self.beam.tip_stiffness_n_m), 1),
             "solver": "cvodes (BDF, sparse direct Newton, AD Jacobian)",
+            "machine_code": self.compiler is not None and bool(getattr(self.compiler, "machine_code", True)),
         }

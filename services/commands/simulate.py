@@ -17,6 +17,7 @@ from rich.progress import Progress
 from railswitch.models.plant import Plant
 from railswitch.models.switch import SwitchSimulation
 from railswitch.schemas.scenario import STROKE_S, Scenario, ScenarioError, load_scenario
+from railswitch.services.adapters.compiled import compiled_plant
 from railswitch.services.adapters.recordings import RecordingPathError, RecordingWriter, check_writable
 from railswitch.services.commands.options import add_own_arguments, bounded, fail, fault_assignment, switch_id
 from railswitch.services.core.simulated_fleet import SwitchStream, own_parameters, simulation
@@ -42,8 +43,8 @@ def simulate_to_mcap(out: str | Path, *, switch_id: str = "sw1", throws: int = 2
     The file appears only when complete (written beside it, then renamed).
     """
     check_writable(out)
-    sim = SwitchSimulation(plant or Plant(), rate_hz=rate_hz, faults=faults, noise_rel=noise_rel, seed=seed, own=own,
-                           stroke_s=stroke_s, end_s=end_s)
+    sim = SwitchSimulation(plant or compiled_plant(), rate_hz=rate_hz, faults=faults, noise_rel=noise_rel, seed=seed,
+                           own=own, stroke_s=stroke_s, end_s=end_s)
     with RecordingWriter(out) as writer:
         for key, message in switch_messages(switch_id, sim, throws, progress):
             writer.write(key, message)
@@ -56,7 +57,7 @@ def scenario_to_mcap(out: str | Path, scenario: Scenario, plant: Plant | None = 
     """Every switch of a scenario, with its idle periods, staggered as the live simulator staggers them,
     recorded in time order."""
     check_writable(out)
-    plant = plant or Plant()
+    plant = plant or compiled_plant()
     count = len(scenario.switches)
     streams = [SwitchStream.start(plan, simulation(plant, plan, scenario, k), interval_s=scenario.interval_s,
                                   offset_s=LEAD_S + k * scenario.interval_s / count)

@@ -13,10 +13,10 @@ import logging
 import threading
 import time
 
-from railswitch.models.plant import Plant
 from railswitch.models.switch import RecordedThrow, ReplayedSwitch
 from railswitch.schemas import FaultCommand
 from railswitch.schemas.scenario import Scenario
+from railswitch.services.adapters.compiled import compiled_plant
 from railswitch.services.adapters.recordings import load_recording
 from railswitch.services.adapters.zenoh_bus import BusOptions, Inbox, Publishers, StatusReporter, declare_service, open_session
 from railswitch.services.commands.options import (
@@ -52,7 +52,7 @@ def run_simulator(options: BusOptions, scenario: Scenario, *, speed: float, stop
         intake = Intake(log, kinds=("inject",))
         status = StatusReporter(publishers, "simulator", intake, status_s)
         token = declare_service(session, "simulator")
-        plant = Plant() if library is None else None
+        plant = compiled_plant() if library is None else None
         start_ns = time.time_ns()
         count = len(scenario.switches)
         streams = {}

@@ -39,11 +39,12 @@ from railswitch.models.switch_diagnosis import (
     ErrorModel,
     SwitchDiagnoser,
     ThrowInput,
+    measurement,
     observable,
     population,
-    measurement,
 )
 from railswitch.schemas.faults import FAULT_PARAMETERS, MODE_PARAMETERS
+from railswitch.services.adapters.compiled import compiled_plant
 from railswitch.services.core.fleet_diagnoser import Diagnoser, throw_input
 from railswitch.services.core.switch_messages import SimulatedThrows
 
@@ -228,7 +229,7 @@ def error_envelope(cases: np.ndarray, relative: bool) -> tuple[float, float]:
 
 def calibrate(name: str, plant: Plant | None = None, progress: Progress | None = None) -> dict:
     """The calibration document of a rail model: port, priors' weight, healthy gains, error model."""
-    plant = plant or Plant()
+    plant = plant or compiled_plant()
     port = bearing_port(Diagnoser(name, port=NEUTRAL_PORT), plant)
     if progress:
         progress("bearing port")

@@ -9,13 +9,12 @@ from pathlib import Path
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-from railswitch.models.plant import Plant
 from railswitch.models.rail_models import REPRESENTATIONS
 from railswitch.models.reduced import STATES, ReducedSwitch
 from railswitch.models.training import TRAIN_SEEDS, train
 from railswitch.models.validation import quick_validation
 from railswitch.services.adapters import model_store
-from railswitch.services.adapters.compiled import MachineCode
+from railswitch.services.adapters.compiled import MachineCode, compiled_plant
 from railswitch.services.core.calibration import calibrate
 
 
@@ -35,7 +34,7 @@ def train_and_save(name: str, *, seed: int = 0, iterations: int = 40, out_dir: s
                 tasks[stage] = progress.add_task(stage, total=iterations, cost="")
             progress.update(tasks[stage], completed=iteration, cost=f"{cost:.4g}")
 
-        plant = Plant()
+        plant = compiled_plant()
         trained = train(representation, plant, seed=seed, iterations=iterations, progress=report)
     seconds = time.perf_counter() - start
     provenance = {"seed": seed, "series_seeds": list(TRAIN_SEEDS), "series_seconds": 100.0, "sample_rate_hz": 50.0,

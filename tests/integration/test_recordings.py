@@ -6,6 +6,7 @@ differently, which moves CVODES's adaptive steps and, around contacts, a sample 
 current by a few 1e-3 A. What stays put is the RMS difference over a throw: it is of
 the order of the solver's own global error, measured below by changing its tolerance.
 """
+import shutil
 from dataclasses import replace
 from pathlib import Path
 
@@ -15,10 +16,13 @@ import pytest
 from railswitch.models.motor import MotorParams
 from railswitch.models.plant import Plant, PlantParams
 from railswitch.models.switch import SwitchSimulation, nominal_peaks
+from railswitch.services.adapters.compiled import MachineCode
 from railswitch.services.adapters.recordings import RecordingReader
 from railswitch.services.core.throw_cutter import cut_throws
 
 RECORDINGS = Path(__file__).resolve().parents[2] / "recordings"
+needs_compiler = pytest.mark.skipif(shutil.which("gcc") is None and shutil.which("cc") is None,
+                                    reason="no C compiler: the plant runs through CasADi's virtual machine")
 SCENARIOS = {
     "nominal.mcap": {},
     "left_bolt.mcap": {"left_bolt_offset": 0.05},
@@ -93,3 +97,17 @@ def test_the_recording_check_sees_a_one_percent_change_of_the_motor(plant, chang
     bound = rms_bound(plant)
     for difference in rms_differences(recorded("nominal.mcap"), changed, {}):
         assert difference["current_a"] > bound["current_a"], (difference, bound)
+
+
+@needs_compiler
+def test_the_machine_code_plant_is_the_plant(plant, tmp_path):
+    """The plant with its equations and Jacobian compiled (what the simulator and the benchmarks run) passes
+    the same check on every example recording, and its library holds the Jacobian CVODES uses."""
+    compiler = MachineCode(tmp_path)
+    compiled = Plant(compiler=compiler)
+    assert compiler.machine_code and compiled.describe()["machine_code"]
+    assert compiled._dae_function.class_name() == compiled._dae_function.jacobian().class_name() == "External"
+    bound = rms_bound(plant)
+    for name, faults in SCENARIOS.items():
+        for difference in rms_differences(recorded(name), compiled, faults):
+            assert all(difference[s] < bound[s] for s in SIGNALS), (name, difference, bound)
