@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from railswitch.models.plant import Plant
+from railswitch.services.adapters.compiled import compiled_plant
 from railswitch.services.core.model_maintenance import describe_reduced
 
 
@@ -13,7 +13,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    description = {"plant": Plant().describe(), "reduced": describe_reduced()}
+    description = {"plant": compiled_plant().describe(), "reduced": describe_reduced()}
     if args.json:
         print(json.dumps(description, indent=2, default=float))
         return 0
