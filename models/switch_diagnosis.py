@@ -115,15 +115,24 @@ class ErrorModel:
 
     def std(self, name: str, value: float, throws: int = 1) -> float:
         """The model's error of an estimate combined over `throws` throws that see the parameter."""
+        common, per_throw = self._variances(name, value)
+        return float(np.sqrt(common + per_throw / max(throws, 1)))
+
+    def common(self, name: str, value: float) -> float:
+        """The part of the model's error that is the same in every throw: what no number of throws removes."""
+        return float(np.sqrt(self._variances(name, value)[0]))
+
+    def _variances(self, name: str, value: float) -> tuple[float, float]:
+        """(common, per-throw) variances at `value`, from the envelopes over one throw and over `throws[name]`."""
         many = self.absolute.get(name, 0.0) + self.relative.get(name, 0.0) * abs(value)
         measured = self.throws.get(name, 1.0)
         if name not in self.one_absolute or measured <= 1.0:
-            return many
+            return many**2, 0.0
         one = self.one_absolute[name] + self.one_relative.get(name, 0.0) * abs(value)
         if one <= many:  # nothing averages out (within the calibration's sampling)
-            return many
-        per_throw = min(one**2, (one**2 - many**2) * measured / (measured - 1.0))  # variance of the varying part
-        return float(np.sqrt(one**2 - per_throw + per_throw / max(throws, 1)))
+            return many**2, 0.0
+        per_throw = min(one**2, (one**2 - many**2) * measured / (measured - 1.0))
+        return one**2 - per_throw, per_throw
 
     def corrected(self, name: str, estimate: float) -> float:
         """The estimate less the model's bias: (estimate - b) / (1 + r) inverts estimate = truth(1 + r) + b."""
@@ -358,7 +367,8 @@ class SwitchDiagnoser:
         self.prior = prior
         self.errors = errors or ErrorModel()
         self.baseline = baseline or Baseline()
-        self.health = HealthTracker(limits, {name: self.errors.absolute.get(name, 0.0) for name in TRACKED})
+        self.health = HealthTracker(limits)  # the model's error that stays, near the limit where a forecast ends
+        self.health.model_error = {name: self.errors.common(name, self.health.limits[name]) for name in TRACKED}
         self.latest: dict[str, ThrowVerdict] = {}
         self.rail_m: float | None = None  # blades' position after the last diagnosed throw
         self.track: list[ThrowVerdict] = []  # throws since the decided fault appeared

@@ -81,6 +81,7 @@ def test_the_model_error_part_that_differs_between_throws_averages_out_and_the_c
     assert errors.std("left_bolt_offset", 0.05, throws=4) == pytest.approx(0.002)
     varying = (0.003**2 - 0.002**2) * 4 / 3
     assert errors.std("left_bolt_offset", 0.05, throws=10_000) == pytest.approx(np.sqrt(0.003**2 - varying), rel=1e-3)
+    assert errors.common("left_bolt_offset", 0.05) == pytest.approx(np.sqrt(0.003**2 - varying), rel=1e-6)
     # a calibration from before the split: the one envelope at any number of throws
     assert ErrorModel(absolute={"left_bolt_offset": 0.002}).std("left_bolt_offset", 0.05, throws=1) == 0.002
     # one throw no worse than several: nothing averages out
