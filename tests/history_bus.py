@@ -7,6 +7,7 @@ from pathlib import Path
 import zenoh
 
 from railswitch.schemas import Diagnosis, HistoryReply, SwitchHealth, decode, encode, key_expr
+from railswitch.services.adapters.processes import services_alive
 from tests.live import ServiceProcesses, wait_for, wait_ready
 
 T0_NS = 1_700_000_000 * 10**9  # November 2023
@@ -60,8 +61,12 @@ def wait_for_rows(session: zenoh.Session, count: int, timeout_s: float = 60.0) -
 
 
 def start_historian(services: ServiceProcesses, session: zenoh.Session, endpoint: str, db: Path, *args: str):
-    """A historian process on `db`, ready (its token is declared once it answers queries)."""
+    """A historian process on `db`, ready (its token is declared once it answers queries).
+
+    A historian just killed leaves its token on the bus until the router notices; counted as ready, it let a
+    test publish before the new one had subscribed (under load, in CI). So first its token must go."""
+    running = sum(1 for name, _, p in services.started if name == "historian" and p.poll() is None)
+    wait_for(lambda: services_alive(session)["historian"] <= running, 30, "stopped historians' tokens to go")
     process = services.start("historian", "--connect", endpoint, "--db", str(db), "--status-interval", "0.5", *args)
-    alive = sum(1 for name, _, p in services.started if name == "historian" and p.poll() is None)
-    wait_ready(session, services, 60, historian=alive)
+    wait_ready(session, services, 60, historian=running + 1)
     return process
