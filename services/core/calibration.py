@@ -9,12 +9,12 @@ Three steps, each on plant throws the diagnosis never sees otherwise:
    gains on a healthy throw by absorbing model error (the evidence discounts it until the switch's own
    commissioning measures it).
 3. Faulty switches of the population, commissioned first, their weather changed since (winding resistance
-   within +-10 %, supply within +-7 %, chairs up to 1.3 times wetter or drier), noise 1 %: the error of each fault parameter,
-   so that a reported standard deviation includes the model's error. The estimate judged is the one a
-   diagnosis reports, combined over the faulty throws that see the fault. The part of the model's error
-   that is the same in each of them does not average out; what differs from throw to throw does. So it is measured twice: on
-   the estimate combined over the faulty throws, and on the first of them alone (the fits' own part is
-   counted as the model's in both: it is small beside it). For each
+   within +-10 %, supply within +-7 %, chairs up to 1.3 times wetter or drier), noise 1 %: the error of
+   each fault parameter, so that a reported standard deviation includes the model's error. The estimate
+   judged is the one a diagnosis reports, combined over the faulty throws that see the fault. The part of
+   the model's error that is the same in each of them does not average out; what differs from throw to
+   throw does. So it is measured twice: on the estimate combined over the faulty throws, and on the first
+   of them alone (the fits' own part is counted as the model's in both: it is small beside it). For each
    parameter, the absolute (positions) or relative (frictions) error that brings 97.5 % of the estimates
    within two standard deviations: an absolute part (a) and, for frictions, a relative one (r), the
    pair with the least mean a + r|value| among those that cover 97.5 %.
@@ -182,10 +182,10 @@ def estimate_errors(diagnoser: Diagnoser, plant: Plant, weight: float, gains: di
         if progress:
             progress(f"faulty switch {k + 1} of {len(cases)}")
     errors: dict[str, dict[str, float]] = {key: {} for key in ErrorModel.__dataclass_fields__}
-    for name, cases in found.items():
-        if not cases:
+    for name, per_case in found.items():
+        if not per_case:
             continue
-        truth, estimate, first, seen = np.array(cases).T
+        truth, estimate, first, seen = np.array(per_case).T
         relative = name not in POSITIONS
         bias, bias_relative = median_line(truth, estimate, proportional=relative)
         errors["bias"][name], errors["bias_relative"][name] = bias, bias_relative
