@@ -1,4 +1,6 @@
 """Fault detection by F test on the effective number of residuals."""
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -87,3 +89,14 @@ def test_the_model_error_part_that_differs_between_throws_averages_out_and_the_c
     # one throw no worse than several: nothing averages out
     same = ErrorModel(absolute={"x": 0.002}, one_absolute={"x": 0.0015}, throws={"x": 4.0})
     assert same.std("x", 0.0, throws=1) == same.std("x", 0.0, throws=9) == 0.002
+
+
+def test_the_health_tracker_takes_the_model_error_that_stays_at_each_limit():
+    """A forecast ends at the limit: the model's error there, its common part (a relative part counts)."""
+    errors = ErrorModel(absolute={"bearing_friction": 80.0}, relative={"bearing_friction": 0.05},
+                        one_absolute={"bearing_friction": 120.0}, one_relative={"bearing_friction": 0.05},
+                        throws={"bearing_friction": 6.0})
+    unused = SimpleNamespace(reduced=SimpleNamespace(params=SimpleNamespace(plant=SimpleNamespace(drive=None))))
+    switch = SwitchDiagnoser(unused, None, errors, limits={"bearing_friction": 4000.0})
+    assert switch.health.model_error["bearing_friction"] == pytest.approx(errors.common("bearing_friction", 4000.0))
+    assert switch.health.model_error["bearing_friction"] > 250.0  # not the absolute part alone
