@@ -35,6 +35,11 @@ def two_throws(plant: Plant) -> tuple[float, np.ndarray, np.ndarray]:
             np.concatenate([t.samples.signals.current_a for t in throws]))
 
 
+def median_wall(plant: Plant, runs: int = 5) -> float:
+    """Median wall time of two throws over `runs` runs (the integrators already built)."""
+    return statistics.median([two_throws(plant)[0] for _ in range(runs)])
+
+
 def scipy_bdf_two_throws(plant: Plant) -> tuple[float, np.ndarray]:
     """The same two throws with scipy's BDF, CasADi-evaluated right-hand side and Jacobian."""
     f = plant.ode_function()
@@ -70,10 +75,10 @@ def main() -> None:
     plant = compiled_plant()  # machine code from this machine's cache (compiled on its first run)
     first, reference_rails, currents = two_throws(plant)  # includes building the CVODES integrator
     build = time.perf_counter() - start - first
-    wall = statistics.median([two_throws(plant)[0] for _ in range(5)])
+    wall = median_wall(plant)
     plain = Plant()  # the same equations through CasADi's virtual machine
-    two_throws(plain)
-    plain_wall, plain_rails, plain_currents = min((two_throws(plain) for _ in range(3)), key=lambda run: run[0])
+    _, plain_rails, plain_currents = two_throws(plain)  # its first run builds its integrator, as above
+    plain_wall = median_wall(plain)
     scipy_wall, scipy_rails = scipy_bdf_two_throws(plant)
     stats = plant.describe()
     emit({

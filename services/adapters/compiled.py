@@ -128,5 +128,5 @@ def _compile(compiler: str, source: str, library: Path) -> None:
 
 def compiled_plant(params: PlantParams = PlantParams(), **options) -> Plant:
     """The high-fidelity plant with its equations and their Jacobian in machine code (cached per machine):
-    the same numbers as Plant(params), about one and a half times faster; Plant(params) without a C compiler."""
+    the same numbers as Plant(params), about 1.4 times faster; Plant(params) without a C compiler."""
     return Plant(params, compiler=MachineCode(), **options)
