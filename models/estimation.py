@@ -41,8 +41,13 @@ from railswitch.models.signals import MotorSignals
 # taking up its play, an obstacle met) that moves across a step boundary leaves ripples in the error surface
 # where the solver stalls (a twin throw's 70 mm bolt fitted as 60 mm, the estimates' error twice as wide).
 MODEL_RATE_HZ = 100.0
-CHUNK_SAMPLES = 200  # model samples per compiled call: 2 s
-GRID_CAPACITY = 40  # grid points evaluated in one mapped call: every hypothesis's grid of a throw at once
+# Model samples per compiled call: 1 s. A throw's rollout is a whole number of chunks, so a shorter chunk
+# wastes less past the throw's last sample (a 7 s throw took four 2 s chunks, 12 % more than it needs).
+CHUNK_SAMPLES = 100
+# Grid points evaluated in one mapped call: every hypothesis's grid of a throw at once (37 points for the
+# switch's hypotheses, models/switch_diagnosis.py) and each fault mode's warm start (4). A point costs what a
+# rollout does whether it is used or padding, so the capacity is what a throw needs.
+GRID_CAPACITY = 41
 # Order-one scales of the parameters for the solver.
 SCALES = {"left_bolt_offset": 0.05, "right_bolt_offset": 0.05, "bearing_friction": 5e3,
           "obstacle_friction": 1e5, "obstacle_position": 0.05, "drive_friction_nm": 0.05,
@@ -273,7 +278,10 @@ class ThrowEstimator:
         index = np.floor(position + 1e-9).astype(int)
         fraction = np.clip(position - index, 0.0, 1.0)
         fraction[fraction < 1e-9] = 0.0
-        chunks = max(1, int(np.ceil((index.max() + 1) / CHUNK_SAMPLES)))
+        # model samples after the start that the samples need: up to the last one's, and the next where it
+        # falls between two (column 0 of the model's outputs is the start itself)
+        needed = int(np.max(index + (fraction > 0)))
+        chunks = max(1, int(np.ceil(needed / CHUNK_SAMPLES)))
         refs = [self.reduced.reference_columns(m.reference, CHUNK_SAMPLES, first=c * CHUNK_SAMPLES) for c in range(chunks)]
         s0 = self.reduced.initial_state(m.start_rail_m, m.start_angle_rad)
         rows = [MEASURED.index(name) for name in m.signals.names]
@@ -439,10 +447,14 @@ class ThrowEstimator:
         noise = np.median(np.abs(second), axis=0) / (0.6745 * np.sqrt(6.0))  # a white sequence's MAD, per signal
         return float(np.mean(noise**2)) / throw.measured.size
 
-    def grid_starts(self, specs: list[HypothesisSpec], base: dict[str, float], throw: _Throw) -> dict[str, dict]:
+    def grid_starts(self, specs: list[HypothesisSpec], base: dict[str, float], throw: _Throw,
+                    warm: dict[str, dict[str, float]] | None = None) -> dict[str, dict]:
         """Each hypothesis's best grid point by residual alone (every grid point of the throw in one batch),
-        with `base` (the nominal fit) everywhere else."""
+        with `base` (the nominal fit) everywhere else; a hypothesis's `warm` values (its fit to the switch's
+        previous throw) compete as one more point."""
         points = [(spec.mode, {**base, **spec.fixed, **point}) for spec in specs for point in spec.grid]
+        points += [(spec.mode, {**base, **spec.fixed, **_free(spec, warm[spec.mode])})
+                   for spec in specs if spec.mode in (warm or {})]
         if not points:
             return {}
         costs = self.costs(np.column_stack([self.reduced.vector(p) for _, p in points]), throw)
@@ -453,24 +465,33 @@ class ThrowEstimator:
         return {mode: point for mode, (_, point) in best.items()}
 
     def fit_all(self, m: Measurement, specs: dict[str, HypothesisSpec], model_weight: float = 0.0,
-                joint_when: Callable[[dict[str, Estimate]], bool] | None = None) -> dict[str, Estimate]:
+                joint_when: Callable[[dict[str, Estimate]], bool] | None = None,
+                warm: dict[str, dict[str, float]] | None = None) -> dict[str, Estimate]:
         """The nominal hypothesis first; each fault mode started from the nominal fit (its own parameters from
         their grid) and stopped once it cannot beat the best so far; joint last, from the best mode,
         and only when `joint_when(the estimates so far)` says it is worth it (a throw that shows no fault needs
         none).
+
+        `warm` holds each hypothesis's values fitted to the switch's previous throw in the same direction. A
+        switch changes little from one throw to the next, so a fit started there converges in fewer
+        iterations; it is only a candidate: the nominal fit starts from it where its objective is lower than
+        the nominal values', and a fault mode where it beats the mode's grid points.
 
         Every hypothesis of the throw shares one prior weight, so their objectives compare: the larger of
         the throw's noise (noise_weight) and `model_weight`, the residual variance over the effective number
         of samples that the model's own error leaves on a healthy throw."""
         throw = self.prepare(m)
         weight = max(self.noise_weight(throw), model_weight)
-        out = {"nominal": self.fit(specs["nominal"], throw, prior_weight=weight)}
+        warm = warm or {}
+        out = {"nominal": self.fit(specs["nominal"], throw, self._nominal_start(specs["nominal"], throw, weight,
+                                                                                warm.get("nominal")),
+                                   prior_weight=weight)}
         # A nuisance the nominal fit had to push far from its prior is the fault's effect absorbed (chairs five
         # times as dry for a missing bearing): the fault modes start it at its prior's edge, since from the
         # nominal's place the fault's parameter and the nuisance trade along a valley too flat to leave.
         nominal = specs["nominal"].within_priors(out["nominal"].values, START_SIGMAS)
         modes = [mode for mode in specs if mode not in ("nominal", "joint")]
-        starts = self.grid_starts([specs[mode] for mode in modes], nominal, throw)
+        starts = self.grid_starts([specs[mode] for mode in modes], nominal, throw, warm)
         for mode in modes:
             rival = min(estimate.objective for estimate in out.values())
             out[mode] = self.fit(specs[mode], throw, starts.get(mode, nominal), rival=rival, prior_weight=weight)
@@ -479,7 +500,30 @@ class ThrowEstimator:
             out["joint"] = self.fit(specs["joint"], throw, out[best].values, prior_weight=weight)
         return out
 
+    def _nominal_start(self, spec: HypothesisSpec, throw: _Throw, weight: float,
+                       warm: dict[str, float] | None) -> dict[str, float] | None:
+        """`warm` where its objective (MSE and priors' charge) is below that of the nominal values; else None."""
+        if warm is None:
+            return None
+        prior = Prior.of(spec, weight)
+        free = list(spec.free)
+        low, high = spec.bounds()
+
+        def objective(start: dict[str, float]) -> float:
+            theta = self.reduced.vector({**spec.fixed, **start})
+            z = np.clip(np.array([theta[PARAMETERS.index(n)] for n in free]), low, high)
+            theta[[PARAMETERS.index(n) for n in free]] = z
+            return self.cost(theta, throw) + float(np.sum(prior.residuals(z) ** 2))
+
+        start = _free(spec, warm)
+        return start if objective(start) < objective({}) else None
+
     def simulate(self, m: Measurement, values: dict[str, float]) -> dict[str, np.ndarray]:
         """The model's outputs at the samples' times under `values` (nominal elsewhere)."""
         throw = self.prepare(m)
         return dict(zip(OUTPUTS, self._at_samples(self.all_outputs(self.reduced.vector(values), throw), throw)))
+
+
+def _free(spec: HypothesisSpec, values: dict[str, float]) -> dict[str, float]:
+    """The values of `spec`'s free parameters among `values`."""
+    return {name: value for name, value in values.items() if name in spec.free}

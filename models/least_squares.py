@@ -39,9 +39,10 @@ def levenberg_marquardt(linearise: Linearise, z0: np.ndarray, *, cost: Callable[
 
     `cost(z)`, when given, evaluates r'r alone for trial points (cheaper than `linearise`, which
     then runs only at accepted points). A fit stops when an iteration lowers r'r by less than
-    `tolerance` of itself, when a step is below SMALLEST_STEP, when no damped step improves
-    (or the damped step's predicted decrease is below the tolerance), after `iterations`, or when
-    `keep_going(cost, relative decrease, iteration)` says no.
+    `tolerance` of itself, or the next step is predicted to (by the linearised residual, before the step
+    is tried, so a converged fit spends no rollout and no Jacobian on it), when a step is below
+    SMALLEST_STEP, when no damped step improves (or the damped step's predicted decrease is below the
+    tolerance), after `iterations`, or when `keep_going(cost, relative decrease, iteration)` says no.
     """
     z0 = np.asarray(z0, dtype=float)
     n = z0.size
@@ -67,10 +68,11 @@ def levenberg_marquardt(linearise: Linearise, z0: np.ndarray, *, cost: Callable[
             step = np.zeros(n)
             step[move] = np.linalg.solve(hessian + damping * np.diag(np.diag(hessian) + 1e-12), -gradient[move])
             trial = np.clip(z + step * scale, low, high)
-            if attempt:  # after a failed step: give up once the damped step promises no visible decrease
-                taken = ((trial - z) / scale)[move]  # parameters held at a bound do not move
-                if -(2.0 * gradient[move] @ taken + taken @ hessian @ taken) < tolerance * value:
-                    break
+            # Converged (first attempt) or given up (after a failed one) once the step promises no visible
+            # decrease: the linear model's r'r, which is what a step this small would achieve.
+            taken = ((trial - z) / scale)[move]  # parameters held at a bound do not move
+            if -(2.0 * gradient[move] @ taken + taken @ hessian @ taken) < tolerance * value:
+                break
             if cost is None:
                 trial_linearised = linearise(trial)
                 trial_value = float(trial_linearised[0] @ trial_linearised[0])

@@ -528,10 +528,12 @@ class SwitchDiagnoser:
         provisional = not self.baseline.complete
         weight = self.prior.model_weight if provisional else self.baseline.model_weight()
         gains = self._gains(throw.direction)
+        previous = self.latest.get(throw.direction)
         estimates = self.estimator.fit_all(
             m, self.specs(throw.direction), weight,
             joint_when=lambda fits: judge(throw.direction, fits, gains, self.evidence,
-                                          self.negligible(fits))[0] != "nominal")
+                                          self.negligible(fits))[0] != "nominal",
+            warm=None if previous is None else {mode: e.values for mode, e in previous.estimates.items()})
         mode, found = judge(throw.direction, estimates, gains, self.evidence, self.negligible(estimates))
         for name, seen in found.items():
             self.evidence[name] = [seen, *self.evidence.get(name, [])][:EVIDENCE_THROWS]
