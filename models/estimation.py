@@ -44,6 +44,10 @@ MODEL_RATE_HZ = 100.0
 # Model samples per compiled call: 1 s. A throw's rollout is a whole number of chunks, so a shorter chunk
 # wastes less past the throw's last sample (a 7 s throw took four 2 s chunks, 12 % more than it needs).
 CHUNK_SAMPLES = 100
+# The grid ranks starting points 20 mm (a bolt, an obstacle's position) or a factor of two (a friction) apart:
+# which basin a point lies in, not where in it the minimum is. The ripples of a 20 ms step (above) are far
+# smaller than that, so the grid runs the model at the step it was trained at, for half the cost.
+GRID_RATE_HZ = 50.0
 # Grid points evaluated in one mapped call: every hypothesis's grid of a throw at once (37 points for the
 # switch's hypotheses, models/switch_diagnosis.py) and each fault mode's warm start (4). A point costs what a
 # rollout does whether it is used or padding, so the capacity is what a throw needs.
@@ -226,18 +230,46 @@ class Estimate:
 
 
 @dataclass(frozen=True)
-class _Throw:
-    """A measurement prepared for the model: its start state, model samples needed, interpolation weights."""
+class _Timeline:
+    """Where a throw's samples fall among the model's samples at one rate, and the reference per chunk."""
 
-    s0: np.ndarray
-    chunks: int
-    refs: list[np.ndarray]  # per chunk, 2 x CHUNK_SAMPLES
+    refs: list[np.ndarray]  # per chunk, 2 x samples per chunk
     index: np.ndarray  # per sample: the model sample at or before it (0: the start)
     fraction: np.ndarray  # per sample: how far towards the next model sample
+    on_grid: bool  # every sample at a model sample
+
+    @classmethod
+    def of(cls, reduced: ReducedSwitch, m: Measurement, chunk: int) -> _Timeline:
+        position = np.asarray(m.t_s, dtype=float) * reduced.rate_hz
+        index = np.floor(position + 1e-9).astype(int)
+        fraction = np.clip(position - index, 0.0, 1.0)
+        fraction[fraction < 1e-9] = 0.0
+        # model samples after the start that the samples need: up to the last one's, and the next where it
+        # falls between two (column 0 of the model's outputs is the start itself)
+        needed = int(np.max(index + (fraction > 0)))
+        chunks = max(1, int(np.ceil(needed / chunk)))
+        refs = [reduced.reference_columns(m.reference, chunk, first=c * chunk) for c in range(chunks)]
+        return cls(refs, index, fraction, not fraction.any())
+
+    def at_samples(self, y: np.ndarray) -> np.ndarray:
+        """Model values (... x model samples, the start first) interpolated at the samples' times: ... x N."""
+        if self.on_grid:  # samples at model samples (a rate that divides the model's): nothing to interpolate
+            return y[..., self.index]
+        nxt = np.minimum(self.index + 1, y.shape[-1] - 1)
+        return y[..., self.index] * (1.0 - self.fraction) + y[..., nxt] * self.fraction
+
+
+@dataclass(frozen=True)
+class _Throw:
+    """A measurement prepared for the model: its start state and where its samples fall on the model's
+    samples (and on the grid's)."""
+
+    s0: np.ndarray
+    model: _Timeline  # at MODEL_RATE_HZ
+    grid: _Timeline  # at GRID_RATE_HZ
     measured: np.ndarray  # N x signals measured
     inverse_scale: np.ndarray  # per signal measured
     rows: list[int]  # the measured signals' rows among MEASURED (all three, or the current alone)
-    on_grid: bool  # every sample at a model sample
 
 
 class ThrowEstimator:
@@ -256,7 +288,14 @@ class ThrowEstimator:
         states, outputs = reduced.step.mapaccum("chunk_acc", c)(s0, refs, ca.repmat(theta, 1, c), ca.repmat(w, 1, c))
         chunk = ca.Function("model_chunk", [s0, refs, theta, w], [states[:, -1], outputs])
         measured = ca.Function("measured_chunk", [s0, refs, theta, w], [states[:, -1], outputs[_MEASURED_ROWS, :]])
-        functions = [chunk, measured.map("model_chunk_grid", "serial", GRID_CAPACITY, [1, 3], [])]
+        self.coarse = ReducedSwitch(reduced.representation, reduced.weights, reduced.params, GRID_RATE_HZ)
+        g = self.grid_chunk = round(CHUNK_SAMPLES * GRID_RATE_HZ / MODEL_RATE_HZ)
+        grid_refs = ca.MX.sym("refs", 2, g)
+        states, outputs = self.coarse.step.mapaccum("grid_acc", g)(s0, grid_refs, ca.repmat(theta, 1, g),
+                                                                   ca.repmat(w, 1, g))
+        coarse = ca.Function("grid_chunk", [s0, grid_refs, theta, w], [states[:, -1], outputs[_MEASURED_ROWS, :]])
+        functions = [chunk, measured.map("model_chunk_grid", "serial", GRID_CAPACITY, [1, 3], []),
+                     coarse.map("coarse_chunk_grid", "serial", GRID_CAPACITY, [1, 3], [])]
         for k in self.directions:
             aug, seeds = ca.MX.sym("s_dot", n * (1 + k)), ca.MX.sym("seeds", p * k)
             step = reduced.sensitivity_step(k)
@@ -267,33 +306,21 @@ class ThrowEstimator:
                                          [states[:, -1], outputs[_MEASURED_ROWS, :], outputs[rows, :]]))
         if compiler is not None:
             functions = compiler(functions)
-        self._chunk, self._grid, *sensitivities = [InPlace(f) for f in functions]
+        self._chunk, self._batch, self._grid, *sensitivities = [InPlace(f) for f in functions]
         self._sensitivity = dict(zip(self.directions, sensitivities))
         self.weights = reduced.weights
 
     # -- the model over one throw -------------------------------------------------------------
     def prepare(self, m: Measurement) -> _Throw:
-        dt = 1.0 / MODEL_RATE_HZ
-        position = np.asarray(m.t_s, dtype=float) / dt
-        index = np.floor(position + 1e-9).astype(int)
-        fraction = np.clip(position - index, 0.0, 1.0)
-        fraction[fraction < 1e-9] = 0.0
-        # model samples after the start that the samples need: up to the last one's, and the next where it
-        # falls between two (column 0 of the model's outputs is the start itself)
-        needed = int(np.max(index + (fraction > 0)))
-        chunks = max(1, int(np.ceil(needed / CHUNK_SAMPLES)))
-        refs = [self.reduced.reference_columns(m.reference, CHUNK_SAMPLES, first=c * CHUNK_SAMPLES) for c in range(chunks)]
         s0 = self.reduced.initial_state(m.start_rail_m, m.start_angle_rad)
         rows = [MEASURED.index(name) for name in m.signals.names]
-        return _Throw(s0, chunks, refs, index, fraction, m.signals.matrix(), 1.0 / m.scales(), rows,
-                      not fraction.any())
+        return _Throw(s0, _Timeline.of(self.reduced, m, CHUNK_SAMPLES), _Timeline.of(self.coarse, m, self.grid_chunk),
+                      m.signals.matrix(), 1.0 / m.scales(), rows)
 
-    def _at_samples(self, y: np.ndarray, throw: _Throw) -> np.ndarray:
+    @staticmethod
+    def _at_samples(y: np.ndarray, throw: _Throw) -> np.ndarray:
         """Model values (... x model samples, the start first) interpolated at the samples' times: ... x N."""
-        if throw.on_grid:  # samples at model samples (a rate that divides the model's): nothing to interpolate
-            return y[..., throw.index]
-        nxt = np.minimum(throw.index + 1, y.shape[-1] - 1)
-        return y[..., throw.index] * (1.0 - throw.fraction) + y[..., nxt] * throw.fraction
+        return throw.model.at_samples(y)
 
     @staticmethod
     def _start_outputs(throw: _Throw, names=MEASURED) -> np.ndarray:
@@ -303,7 +330,7 @@ class ThrowEstimator:
     def all_outputs(self, theta: np.ndarray, throw: _Throw) -> np.ndarray:
         """Every output of the model (OUTPUTS), 6 x (1 + model samples), the start first."""
         state, blocks = throw.s0, [self._start_outputs(throw, OUTPUTS)[:, None]]
-        for refs in throw.refs:
+        for refs in throw.model.refs:
             state, y = self._chunk(state, refs, theta, self.weights)
             blocks.append(y)
         return np.hstack(blocks)
@@ -325,8 +352,11 @@ class ThrowEstimator:
         value = float(r @ r)
         return value if np.isfinite(value) else np.inf
 
-    def costs(self, thetas: np.ndarray, throw: _Throw) -> np.ndarray:
-        """r'r of many parameter vectors (columns), GRID_CAPACITY to a mapped call."""
+    def costs(self, thetas: np.ndarray, throw: _Throw, coarse: bool = False) -> np.ndarray:
+        """r'r of many parameter vectors (columns), GRID_CAPACITY to a mapped call; `coarse`: with the model at
+        GRID_RATE_HZ (what the grid ranks its points by)."""
+        evaluate, timeline, chunk = (self._grid, throw.grid, self.grid_chunk) if coarse else \
+            (self._batch, throw.model, CHUNK_SAMPLES)
         out = []
         for first in range(0, thetas.shape[1], GRID_CAPACITY):
             batch = thetas[:, first:first + GRID_CAPACITY]
@@ -335,15 +365,15 @@ class ThrowEstimator:
             states = np.repeat(throw.s0[:, None], GRID_CAPACITY, axis=1)
             start = np.repeat(self._start_outputs(throw)[:, None, None], GRID_CAPACITY, axis=2)
             blocks = [start]
-            for refs in throw.refs:
-                states, y = self._grid(states, refs, batch, self.weights)
-                blocks.append(y.reshape(len(MEASURED), CHUNK_SAMPLES, GRID_CAPACITY, order="F"))
-            y = np.concatenate(blocks, axis=1)  # 3 x samples x G
-            for g in range(count):
-                r = self._scaled(self._at_samples(y[throw.rows, :, g], throw) - throw.measured.T, throw)
-                value = float(r @ r)
-                out.append(value if np.isfinite(value) else np.inf)
-        return np.array(out)
+            for refs in timeline.refs:
+                states, y = evaluate(states, refs, batch, self.weights)
+                blocks.append(y.reshape(len(MEASURED), chunk, GRID_CAPACITY, order="F"))
+            y = np.moveaxis(np.concatenate(blocks, axis=1)[throw.rows, :, :count], 2, 0)  # G x signals x samples
+            differences = (timeline.at_samples(y) - throw.measured.T) * throw.inverse_scale[:, None]  # as _scaled
+            with np.errstate(over="ignore", invalid="ignore"):
+                out.append(np.mean(differences**2, axis=(1, 2)))
+        values = np.concatenate(out)
+        return np.where(np.isfinite(values), values, np.inf)
 
     def linearise(self, theta: np.ndarray, throw: _Throw, index: list[int]) -> tuple[np.ndarray, np.ndarray]:
         """Residual and its Jacobian columns for the parameters at `index`."""
@@ -355,7 +385,7 @@ class ThrowEstimator:
         n = len(STATES)
         aug = np.concatenate([throw.s0, np.zeros(n * k)])
         ys, dys = [self._start_outputs(throw)[:, None]], [np.zeros((3 * k, 1))]
-        for refs in throw.refs:
+        for refs in throw.model.refs:
             aug, y, dy = self._sensitivity[k](aug, refs, theta, seeds, self.weights)
             ys.append(y)
             dys.append(dy)
@@ -449,7 +479,8 @@ class ThrowEstimator:
 
     def grid_starts(self, specs: list[HypothesisSpec], base: dict[str, float], throw: _Throw,
                     warm: dict[str, dict[str, float]] | None = None) -> dict[str, dict]:
-        """Each hypothesis's best grid point by residual alone (every grid point of the throw in one batch),
+        """Each hypothesis's best grid point by residual alone (every grid point of the throw in one batch, the
+        model at GRID_RATE_HZ),
         with `base` (the nominal fit) everywhere else; a hypothesis's `warm` values (its fit to the switch's
         previous throw) compete as one more point."""
         points = [(spec.mode, {**base, **spec.fixed, **point}) for spec in specs for point in spec.grid]
@@ -457,7 +488,7 @@ class ThrowEstimator:
                    for spec in specs if spec.mode in (warm or {})]
         if not points:
             return {}
-        costs = self.costs(np.column_stack([self.reduced.vector(p) for _, p in points]), throw)
+        costs = self.costs(np.column_stack([self.reduced.vector(p) for _, p in points]), throw, coarse=True)
         best: dict[str, tuple[float, dict]] = {}
         for (mode, point), cost in zip(points, costs):
             if mode not in best or cost < best[mode][0]:
