@@ -7,7 +7,9 @@ alone, where a unit logs nothing else), each scaled by its range, so the cost is
 squared error of the scaled signals.
 Bounded Levenberg-Marquardt (models/least_squares.py) on exact Jacobians; where the
 error is multimodal (a bolt offset or an obstacle position moves the instant something
-happens, not only its size) the best of a grid of cheap residual evaluations starts it.
+happens, not only its size) the best of a grid of cheap residual evaluations (the model at its
+20 ms training step, GRID_RATE_HZ) starts it, or the hypothesis's fit to the switch's previous
+throw where that fits better.
 
 The model runs on its own grid (`MODEL_RATE_HZ`, one integration step per model sample)
 in compiled chunks of `CHUNK_SAMPLES`, as many as the throw needs; the residual compares

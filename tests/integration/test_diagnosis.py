@@ -47,6 +47,18 @@ def test_nominal_throws_with_one_percent_noise_are_nominal(diagnoser, plant, see
     assert [item.diagnosis.decision for item in diagnose_simulation(diagnoser, "noisy", sim, 2)] == ["nominal", "nominal"]
 
 
+def _twin_throw(estimator, direction: str, truth: dict[str, float]) -> Measurement:
+    """The reduced model's own throw under `truth`, the switch as built."""
+    start_rail = 1.0 if direction == "left_to_right" else 1.2
+    start_angle = 0.0 if direction == "left_to_right" else float(throw_reference("left_to_right").angle_rad())
+    reference, t_s = throw_reference(direction), np.arange(1, 351) / 50.0
+    blank = np.zeros(350)
+    y = estimator.simulate(Measurement(direction, reference, t_s, MotorSignals(blank, blank, blank), start_angle,
+                                       start_rail), truth)
+    return Measurement(direction, reference, t_s, MotorSignals(y["current_a"], y["angle_rad"], y["velocity_rad_s"]),
+                       start_angle, start_rail)
+
+
 @pytest.mark.parametrize("direction, mode, truth", [
     ("left_to_right", "left_bolt", {"left_bolt_offset": 0.07}),
     ("right_to_left", "right_bolt", {"right_bolt_offset": 0.12}),
@@ -57,18 +69,30 @@ def test_single_fault_is_identified_within_a_tenth_of_a_percent_on_reduced_model
     """The reduced model's own throw (its twin): every hypothesis fitted as the diagnosis fits it, the switch as
     built (the reduced model's nominal own parameters)."""
     estimator = diagnoser.estimator
-    start_rail = 1.0 if direction == "left_to_right" else 1.2
-    start_angle = 0.0 if direction == "left_to_right" else float(throw_reference("left_to_right").angle_rad())
-    reference, t_s = throw_reference(direction), np.arange(1, 351) / 50.0
-    blank = np.zeros(350)
-    y = estimator.simulate(Measurement(direction, reference, t_s, MotorSignals(blank, blank, blank), start_angle,
-                                       start_rail), truth)
-    m = Measurement(direction, reference, t_s, MotorSignals(y["current_a"], y["angle_rad"], y["velocity_rad_s"]),
-                    start_angle, start_rail)
+    m = _twin_throw(estimator, direction, truth)
     estimates = estimator.fit_all(m, diagnoser.switch("twin").specs(direction))
     for name, value in truth.items():
         assert estimates[mode].params[name] == pytest.approx(value, rel=1e-3), estimates[mode]
     assert estimates[mode].mse < 1e-3 * estimates["nominal"].mse
+
+
+def test_fits_started_from_the_previous_throws_need_fewer_iterations_and_a_start_that_fits_worse_is_not_taken(
+        diagnoser):
+    """The switch's previous fits (`warm`) start this throw's where they fit better than the cold starts: the
+    same estimates in fewer iterations; starts far off (a bolt at its end stop, the winding twice as
+    resistive) lose to the nominal values and the grid, and the fits are the cold ones to the bit."""
+    estimator = diagnoser.estimator
+    m = _twin_throw(estimator, "left_to_right", {"left_bolt_offset": 0.07})
+    specs = diagnoser.switch("twin").specs("left_to_right")
+    cold = estimator.fit_all(m, specs)
+    warm = estimator.fit_all(m, specs, warm={mode: e.values for mode, e in cold.items()})
+    assert sum(e.iterations for e in warm.values()) < sum(e.iterations for e in cold.values())
+    assert warm["left_bolt"].params["left_bolt_offset"] == pytest.approx(0.07, rel=1e-3)
+    far = {mode: {**e.values, "left_bolt_offset": 0.19, "motor.resistance_ohm": 2 * e.values["motor.resistance_ohm"]}
+           for mode, e in cold.items()}
+    farther = estimator.fit_all(m, specs, warm=far)
+    for mode in ("nominal", "left_bolt"):
+        assert farther[mode].params == cold[mode].params, mode
 
 
 @pytest.fixture(scope="module")
