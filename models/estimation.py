@@ -508,7 +508,8 @@ class ThrowEstimator:
         `warm` holds each hypothesis's values fitted to the switch's previous throw in the same direction. A
         switch changes little from one throw to the next, so a fit started there converges in fewer
         iterations; it is only a candidate: the nominal fit starts from it where its objective is lower than
-        the nominal values', and a fault mode where it beats the mode's grid points.
+        the nominal values', a fault mode where it beats the mode's grid points, and the joint fit where it
+        beats the best mode's fit.
 
         Every hypothesis of the throw shares one prior weight, so their objectives compare: the larger of
         the throw's noise (noise_weight) and `model_weight`, the residual variance over the effective number
@@ -516,9 +517,8 @@ class ThrowEstimator:
         throw = self.prepare(m)
         weight = max(self.noise_weight(throw), model_weight)
         warm = warm or {}
-        out = {"nominal": self.fit(specs["nominal"], throw, self._nominal_start(specs["nominal"], throw, weight,
-                                                                                warm.get("nominal")),
-                                   prior_weight=weight)}
+        start = self._better_start(specs["nominal"], throw, weight, None, warm.get("nominal"))
+        out = {"nominal": self.fit(specs["nominal"], throw, start, prior_weight=weight)}
         # A nuisance the nominal fit had to push far from its prior is the fault's effect absorbed (chairs five
         # times as dry for a missing bearing): the fault modes start it at its prior's edge, since from the
         # nominal's place the fault's parameter and the nuisance trade along a valley too flat to leave.
@@ -530,14 +530,16 @@ class ThrowEstimator:
             out[mode] = self.fit(specs[mode], throw, starts.get(mode, nominal), rival=rival, prior_weight=weight)
         if "joint" in specs and (joint_when is None or joint_when(out)):
             best = min(modes, key=lambda mode: out[mode].objective) if modes else "nominal"
-            out["joint"] = self.fit(specs["joint"], throw, out[best].values, prior_weight=weight)
+            start = self._better_start(specs["joint"], throw, weight, out[best].values, warm.get("joint"))
+            out["joint"] = self.fit(specs["joint"], throw, start, prior_weight=weight)
         return out
 
-    def _nominal_start(self, spec: HypothesisSpec, throw: _Throw, weight: float,
-                       warm: dict[str, float] | None) -> dict[str, float] | None:
-        """`warm` where its objective (MSE and priors' charge) is below that of the nominal values; else None."""
+    def _better_start(self, spec: HypothesisSpec, throw: _Throw, weight: float, start: dict[str, float] | None,
+                      warm: dict[str, float] | None) -> dict[str, float] | None:
+        """`warm` where its objective (MSE and priors' charge) is below that of `start` (None: the nominal
+        values); else `start`."""
         if warm is None:
-            return None
+            return start
         prior = Prior.of(spec, weight)
         free = list(spec.free)
         low, high = spec.bounds()
@@ -548,8 +550,8 @@ class ThrowEstimator:
             theta[[PARAMETERS.index(n) for n in free]] = z
             return self.cost(theta, throw) + float(np.sum(prior.residuals(z) ** 2))
 
-        start = _free(spec, warm)
-        return start if objective(start) < objective({}) else None
+        candidate = _free(spec, warm)
+        return candidate if objective(candidate) < objective(_free(spec, start or {})) else start
 
     def simulate(self, m: Measurement, values: dict[str, float]) -> dict[str, np.ndarray]:
         """The model's outputs at the samples' times under `values` (nominal elsewhere)."""

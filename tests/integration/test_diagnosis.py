@@ -87,11 +87,12 @@ def test_fits_started_from_the_previous_throws_need_fewer_iterations_and_a_start
     cold = estimator.fit_all(m, specs)
     warm = estimator.fit_all(m, specs, warm={mode: e.values for mode, e in cold.items()})
     assert sum(e.iterations for e in warm.values()) < sum(e.iterations for e in cold.values())
+    assert warm["joint"].iterations < cold["joint"].iterations  # the joint fit too, not only the modes
     assert warm["left_bolt"].params["left_bolt_offset"] == pytest.approx(0.07, rel=1e-3)
     far = {mode: {**e.values, "left_bolt_offset": 0.19, "motor.resistance_ohm": 2 * e.values["motor.resistance_ohm"]}
            for mode, e in cold.items()}
     farther = estimator.fit_all(m, specs, warm=far)
-    for mode in ("nominal", "left_bolt"):
+    for mode in ("nominal", "left_bolt", "joint"):
         assert farther[mode].params == cold[mode].params, mode
 
 
