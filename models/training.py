@@ -113,12 +113,28 @@ def training_data(plant: Plant, series_seeds=None) -> list[RailData]:
     return [rail_experiment(plant, s) for s in seeds] + [nominal_throw_data(plant)]
 
 
-def _numeric(residual_and_jacobian: ca.Function) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:
-    """Wrap a CasADi (residual, Jacobian) Function for the least-squares solver."""
-    def evaluate(z: np.ndarray):
-        r, j = residual_and_jacobian(z)
+@dataclass(frozen=True)
+class Residuals:
+    """A training stage's residual for the least-squares solver: with its Jacobian (at the points the solver
+    accepts) and alone (at its trial points, so that a rejected step costs a residual, not a Jacobian)."""
+
+    linearise: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+    cost: Callable[[np.ndarray], float]
+
+
+def _numeric(residual: ca.MX, z: ca.MX, name: str) -> Residuals:
+    """The solver's view of a CasADi residual of `z`."""
+    with_jacobian = ca.Function(name, [z], [residual, ca.jacobian(residual, z)])
+    alone = ca.Function(f"{name}_alone", [z], [residual])
+
+    def linearise(value: np.ndarray):
+        r, j = with_jacobian(value)
         return np.asarray(r).ravel(), np.asarray(j)
-    return evaluate
+
+    def cost(value: np.ndarray) -> float:
+        r = np.asarray(alone(value)).ravel()
+        return float(r @ r)
+    return Residuals(linearise, cost)
 
 
 # -- acausal: multiple shooting on rail data --------------------------------------------------------
@@ -158,8 +174,15 @@ def shooting_segments(data: list[RailData]) -> tuple[np.ndarray, np.ndarray, np.
 NN_RIDGE = 1e-3  # weight decay of the NN spring and damper: keeps them smooth (no learned steps)
 
 
-def acausal_residuals(representation: Representation, reduced: ReducedParams, data: list[RailData]) -> Callable:
-    """z -> (residuals, Jacobian) of the scaled shooting errors over all segments (plus weight decay for nn)."""
+def _map(function: ca.Function, count: int, threads: int) -> ca.Function:
+    """`function` over `count` columns, on `threads` threads (each column alone: the same numbers on any number)."""
+    return function.map(count, "thread", threads) if threads > 1 else function.map(count, "serial")
+
+
+def acausal_residuals(representation: Representation, reduced: ReducedParams, data: list[RailData],
+                      threads: int = 1) -> Residuals:
+    """The scaled shooting errors over all segments (plus weight decay for nn) as functions of z, the segments
+    shared among `threads` threads."""
     starts, forces, measured = shooting_segments(data)
     segments = starts.shape[1]
     step = rail_step_function(representation, reduced)
@@ -170,7 +193,7 @@ def acausal_residuals(representation: Representation, reduced: ReducedParams, da
     f = ca.MX.sym("f", 2, SEGMENT_SAMPLES)
     states = roll(s0, f, ca.repmat(w, 1, SEGMENT_SAMPLES))
     one = ca.Function("one_segment", [s0, f, z], [states])
-    all_segments = one.map(segments, "serial")
+    all_segments = _map(one, segments, threads)
     S0 = ca.MX(ca.DM(starts))
     F = ca.MX(ca.DM(forces.transpose(0, 2, 1).reshape(2, -1)))  # 2 x (N * segments), segment-major
     predicted = all_segments(S0, F, ca.repmat(z, 1, segments))
@@ -179,7 +202,7 @@ def acausal_residuals(representation: Representation, reduced: ReducedParams, da
     residual = ca.vec((predicted - ca.DM(target)) * ca.repmat(scale, 1, predicted.shape[1]))
     if isinstance(representation, NNRail):
         residual = ca.vertcat(residual, np.sqrt(NN_RIDGE) * z[2:])  # networks only, not mass and xfix
-    return _numeric(ca.Function("acausal_residual", [z], [residual, ca.jacobian(residual, z)]))
+    return _numeric(residual, z, "acausal_residual")
 
 
 # -- causal: regression, then fine-tuning inside the reduced switch model ---------------------------
@@ -190,8 +213,9 @@ RIDGE = 1e-2  # weight decay of the causal regression
 ACCELERATION_INPUT_RIDGE = 1e3
 
 
-def causal_regression(representation: CausalRail, reduced: ReducedParams, data: list[RailData]) -> Callable:
-    """z -> (residuals, Jacobian) of g(x, v, a) minus the port force, in kN, plus a small ridge term.
+def causal_regression(representation: CausalRail, reduced: ReducedParams, data: list[RailData],
+                      threads: int = 1) -> Residuals:
+    """g(x, v, a) minus the port force, in kN, plus a small ridge term, as functions of z.
 
     The port force is what the representation balances inside the reduced switch:
     the machine's force plus the reduced model's own end stops. One sample's
@@ -206,16 +230,22 @@ def causal_regression(representation: CausalRail, reduced: ReducedParams, data: 
     x, v, a, f = (ca.SX.sym(k) for k in "xvaf")
     r = (representation.force(x, v, a, z) - f - stock_rail_force(reduced, x, v)) / FORCE_SCALE_N
     row = ca.Function("causal_row", [x, v, a, f, z], [r, ca.jacobian(r, z)])
-    rows = row.map(columns.shape[1], "serial")
+    rows = _map(row, columns.shape[1], threads)
+    alone = _map(ca.Function("causal_row_alone", [x, v, a, f, z], [r]), columns.shape[1], threads)
     decay = np.full(representation.size, RIDGE)
     decay[representation.acceleration_input_weights()] = ACCELERATION_INPUT_RIDGE
     ridge = np.diag(np.sqrt(decay))
 
-    def evaluate(zv: np.ndarray):
+    def linearise(zv: np.ndarray):
         r_all, j_all = rows(columns[0], columns[1], columns[2], columns[3], zv)
         r_all = np.concatenate([np.asarray(r_all).ravel(), ridge @ zv])
         return r_all, np.vstack([np.asarray(j_all).reshape(representation.size, -1, order="F").T, ridge])
-    return evaluate
+
+    def cost(zv: np.ndarray) -> float:
+        r_all = np.concatenate([np.asarray(alone(columns[0], columns[1], columns[2], columns[3], zv)).ravel(),
+                                ridge @ zv])
+        return float(r_all @ r_all)
+    return Residuals(linearise, cost)
 
 
 @dataclass(frozen=True)
@@ -229,8 +259,8 @@ class SwitchTarget:
     rail_velocity_m_s: np.ndarray
 
 
-def switch_residuals(reduced, targets: list[SwitchTarget]) -> Callable:
-    """w -> (residuals, Jacobian) of current, rail position and velocity inside the reduced switch model."""
+def switch_residuals(reduced, targets: list[SwitchTarget]) -> Residuals:
+    """Current, rail position and velocity inside the reduced switch model, as functions of w."""
     w = ca.MX.sym("w", reduced.representation.size)
     blocks = []
     for target in targets:
@@ -241,7 +271,7 @@ def switch_residuals(reduced, targets: list[SwitchTarget]) -> Callable:
                    (y[3, :].T - target.rail_position_m) / POSITION_RESIDUAL_M,
                    (y[4, :].T - target.rail_velocity_m_s) / VELOCITY_RESIDUAL_M_S]
     residual = ca.vertcat(*blocks)
-    return _numeric(ca.Function("switch_residual", [w], [residual, ca.jacobian(residual, w)]))
+    return _numeric(residual, w, "switch_residual")
 
 
 # -- the whole recipe per representation ----------------------------------------------------------
@@ -285,26 +315,27 @@ def random_switch_target(plant: Plant, reduced, seed: int, duration_s: float = 3
 FIT_TOLERANCE = 1e-6  # relative decrease of the training cost below which a stage has converged
 
 
-def _fit(stage: str, fn: Callable, z0: np.ndarray, iterations: int, progress: Progress | None) -> tuple[np.ndarray, dict]:
+def _fit(stage: str, fn: Residuals, z0: np.ndarray, iterations: int, progress: Progress | None) -> tuple[np.ndarray, dict]:
     """One training stage: Levenberg-Marquardt, unbounded (bounds live in the parametrisations)."""
-    result = levenberg_marquardt(fn, z0, iterations=iterations, tolerance=FIT_TOLERANCE,
+    result = levenberg_marquardt(fn.linearise, z0, cost=fn.cost, iterations=iterations, tolerance=FIT_TOLERANCE,
                                  progress=None if progress is None else (lambda k, cost: progress(stage, k, cost)))
     return result.z, {"iterations": result.iterations, "cost_start": result.history[0], "cost_end": result.cost}
 
 
 def train(representation: Representation, plant: Plant, *, seed: int = 0, series_seeds=TRAIN_SEEDS,
-          iterations: int = 40, progress: Progress | None = None) -> Trained:
-    """Fit one representation to plant data, deterministically for a seed."""
+          iterations: int = 40, progress: Progress | None = None, threads: int = 1) -> Trained:
+    """Fit one representation to plant data, deterministically for a seed (and the same on any number of
+    `threads`, which share the data's segments and samples)."""
     from railswitch.models.reduced import ReducedSwitch
 
     data = training_data(plant, series_seeds)
     w0 = representation.initial_weights(seed)
     stages = {}
     if representation.acausal:
-        z, stages["shooting"] = _fit("shooting", acausal_residuals(representation, ReducedParams(), data),
+        z, stages["shooting"] = _fit("shooting", acausal_residuals(representation, ReducedParams(), data, threads),
                                      representation.z_from_weights(w0), iterations, progress)
         return Trained(representation.name, representation.weights_from_z(z), stages)
-    w, stages["regression"] = _fit("regression", causal_regression(representation, ReducedParams(), data), w0,
+    w, stages["regression"] = _fit("regression", causal_regression(representation, ReducedParams(), data, threads), w0,
                                    iterations, progress)
     reduced = ReducedSwitch(representation, w)
     targets = nominal_switch_targets(plant, reduced) + [random_switch_target(plant, reduced, series_seeds[0])]

@@ -12,6 +12,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=bounded(int, 0, 2**32 - 1), default=0)
     parser.add_argument("--iterations", type=bounded(int, 1, 1000), default=40,
                         help="Levenberg-Marquardt iterations per fitting stage")
+    parser.add_argument("--threads", type=bounded(int, 1, 256), default=None,
+                        help="threads that share the training data (default: one per core; the weights are the same)")
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--out", default=None, metavar="DIR",
                        help="where to write <model>.json (default: the user's model directory, $RAILSWITCH_MODELS)")
@@ -23,7 +25,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         for name in models_named(args.model):
             path, seconds = train_and_save(name, seed=args.seed, iterations=args.iterations, out_dir=args.out,
-                                           replace_shipped=args.replace_shipped)
+                                           replace_shipped=args.replace_shipped, threads=args.threads)
             print(f"trained {name} in {seconds:.1f} s: {path} (then `railswitch calibrate --model {name}`)")
     except OSError as error:
         return fail(f"cannot write the parameters: {error}")

@@ -2,6 +2,7 @@
 reading and writing their documents through services/adapters/model_store.py."""
 from __future__ import annotations
 
+import os
 import sys
 import time
 from pathlib import Path
@@ -19,9 +20,11 @@ from railswitch.services.core.calibration import calibrate
 
 
 def train_and_save(name: str, *, seed: int = 0, iterations: int = 40, out_dir: str | None = None,
-                   replace_shipped: bool = False) -> tuple[Path, float]:
+                   replace_shipped: bool = False, threads: int | None = None) -> tuple[Path, float]:
     """Train one representation with a live progress line, validate it quickly and store its document
-    (model_store.save: the user directory unless told otherwise); its path and the training time."""
+    (model_store.save: the user directory unless told otherwise); its path and the training time. `threads`
+    (default: one per core) share the data; the weights are the same on any number."""
+    threads = threads or training_threads()
     representation = REPRESENTATIONS[name]
     start = time.perf_counter()
     with Progress(TextColumn(f"[bold]{name}[/] {{task.description}}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
@@ -35,10 +38,10 @@ def train_and_save(name: str, *, seed: int = 0, iterations: int = 40, out_dir: s
             progress.update(tasks[stage], completed=iteration, cost=f"{cost:.4g}")
 
         plant = compiled_plant()
-        trained = train(representation, plant, seed=seed, iterations=iterations, progress=report)
+        trained = train(representation, plant, seed=seed, iterations=iterations, progress=report, threads=threads)
     seconds = time.perf_counter() - start
     provenance = {"seed": seed, "series_seeds": list(TRAIN_SEEDS), "series_seconds": 100.0, "sample_rate_hz": 50.0,
-                  "iterations": iterations, "stages": trained.stages, "seconds": round(seconds, 1)}
+                  "iterations": iterations, "stages": trained.stages, "seconds": round(seconds, 1), "threads": threads}
     document = model_store.weights_document(representation, trained.weights, provenance)
     document["validation"] = quick_validation(ReducedSwitch(representation, trained.weights, compiler=MachineCode()),
                                               plant)
@@ -71,3 +74,8 @@ def describe_reduced() -> dict:
                      "calibration": {"model_weight": stored.model_weight, "healthy_gains": stored.healthy_gains,
                                      "error_model": stored.error_model}}
     return out
+
+
+def training_threads() -> int:
+    """One per core this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1

@@ -13,10 +13,11 @@ from railswitch.schemas import RAIL_MODELS
 MODELS = RAIL_MODELS  # every representation
 
 
-def test_poly_training_on_a_small_data_set_converges_and_is_deterministic():
+def test_poly_training_on_a_small_data_set_converges_and_is_deterministic_on_any_number_of_threads():
     plant = Plant()
     representation = REPRESENTATIONS["poly"]
-    runs = [training.train(representation, plant, series_seeds=(5,), iterations=25) for _ in range(2)]
+    runs = [training.train(representation, plant, series_seeds=(5,), iterations=25, threads=threads)
+            for threads in (1, 2)]
     stage = runs[0].stages["shooting"]
     assert stage["cost_end"] < 0.2 * stage["cost_start"]
     np.testing.assert_array_equal(runs[0].weights, runs[1].weights)
