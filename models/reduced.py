@@ -105,6 +105,40 @@ def stock_rail_force(params: ReducedParams, x, v):
     return left - right
 
 
+UNROLLED = 50  # steps written out one after another in a rolled-out Function's inner loop
+
+
+def rolled(step: ca.Function, s0, refs, *held):
+    """`step` (state, ref, *held) -> (state, output) once per column of `refs`, every call on the same `held`
+    arguments: (the last state, the outputs side by side).
+
+    A mapaccum over the samples would take each held argument as one column per sample, and for a learned
+    rail's weights that is a megabyte copied per throw (a fifth of the causal rail's rollout). So the steps run
+    UNROLLED at a time with the held arguments passed once, and only those blocks go through a mapaccum."""
+    blocks = refs.shape[1] // UNROLLED
+    state, outputs = s0, []
+    if blocks:
+        s, r = ca.MX.sym("s", s0.shape[0]), ca.MX.sym("refs", 2, UNROLLED)
+        symbols = [ca.MX.sym(f"held{i}", x.shape[0], x.shape[1]) for i, x in enumerate(held)]
+        block = ca.Function(f"{step.name()}_block", [s, r, *symbols], list(_unrolled(step, s, r, *symbols)))
+        states, out = block.mapaccum(f"{step.name()}_blocks", blocks)(s0, refs[:, :blocks * UNROLLED],
+                                                                       *[ca.repmat(x, 1, blocks) for x in held])
+        state, outputs = states[:, -1], [out]
+    if refs.shape[1] > blocks * UNROLLED:
+        state, tail = _unrolled(step, state, refs[:, blocks * UNROLLED:], *held)
+        outputs.append(tail)
+    return state, ca.horzcat(*outputs)
+
+
+def _unrolled(step: ca.Function, s0, refs, *held):
+    """`step` once per column of `refs`, written out: (the last state, the outputs side by side)."""
+    state, columns = s0, []
+    for k in range(refs.shape[1]):
+        state, column = step(state, refs[:, k], *held)
+        columns.append(column)
+    return state, ca.horzcat(*columns)
+
+
 Compiler = Callable[[list[ca.Function]], list[ca.Function]]
 """Turns Functions into equivalent ones (for instance machine code); the edge that owns compilers and caches
 gives one to the models (services/adapters/compiled.py). None keeps CasADi's interpreted evaluation."""
@@ -242,18 +276,20 @@ class ReducedSwitch:
         return function if self.compiler is None else self.compiler([function])[0]
 
     def _rollout(self, samples: int) -> ca.Function:
-        acc = self.step.mapaccum("rollout_acc", samples)
         s0 = ca.MX.sym("s0", len(STATES))
         refs = ca.MX.sym("refs", 2, samples)
         theta = ca.MX.sym("theta", len(PARAMETERS))
         w = ca.MX.sym("w", self.representation.size)
-        states, outputs = acc(s0, refs, ca.repmat(theta, 1, samples), ca.repmat(w, 1, samples))
-        return ca.Function("rollout", [s0, refs, theta, w], [outputs, states[:, -1]],
+        state, outputs = rolled(self.step, s0, refs, theta, w)
+        return ca.Function("rollout", [s0, refs, theta, w], [outputs, state],
                            ["s0", "refs", "theta", "w"], ["y", "s_end"])
 
-    def sensitivity_step(self, directions: int) -> ca.Function:
+    @lru_cache(maxsize=8)
+    def sensitivity_step(self, directions: int, wrt: str = "theta") -> ca.Function:
         """One sample carrying K forward sensitivities: (s and its K derivatives stacked, ref, theta, the K
-        parameter seeds P x K flattened, w) -> (the same one sample later, outputs 6 and their derivatives 6K).
+        seeds flattened, w) -> (the same one sample later, outputs 6 and their derivatives 6K). The seeds are
+        over the parameters (P x K, `wrt` "theta": the diagnosis) or over the rail's weights (size x K, `wrt`
+        "w": training).
 
         The sensitivities ride through each step in SX as K extra 8-vectors of state: the same numbers
         as CasADi's forward derivative of a rollout, at a third to a fifth of its cost, which recomputes
@@ -261,24 +297,31 @@ class ReducedSwitch:
         n, m = len(STATES), len(PARAMETERS)
         s, ref, theta = ca.SX.sym("s", n), ca.SX.sym("ref", 2), ca.SX.sym("theta", m)
         w = ca.SX.sym("w", self.representation.size)
-        state_seeds, parameter_seeds = ca.SX.sym("S", n, directions), ca.SX.sym("D", m, directions)
+        varied = {"theta": theta, "w": w}[wrt]
+        state_seeds, parameter_seeds = ca.SX.sym("S", n, directions), ca.SX.sym("D", varied.shape[0], directions)
         s_next, y = self.step(s, ref, theta, w)
-        point, seeds = ca.vertcat(s, theta), ca.vertcat(state_seeds, parameter_seeds)
+        point, seeds = ca.vertcat(s, varied), ca.vertcat(state_seeds, parameter_seeds)
         s_next, s_next_dot, y, y_dot = ca.cse([s_next, ca.jtimes(s_next, point, seeds), y, ca.jtimes(y, point, seeds)])
         return ca.Function("sensitivity_step", [ca.vertcat(s, ca.vec(state_seeds)), ref, theta, ca.vec(parameter_seeds), w],
                            [ca.vertcat(s_next, ca.vec(s_next_dot)), ca.vertcat(y, ca.vec(y_dot))],
                            ["s_dot", "ref", "theta", "seeds", "w"], ["s_dot_next", "y_dot"])
 
-    def sensitivity_rollout(self, samples: int, directions: int) -> ca.Function:
-        """(s0, refs 2xN, theta, seeds PxK, w) -> outputs 6xN and their derivatives along the K parameter
-        seeds, 6K x N (rows: output, then seed)."""
+    @lru_cache(maxsize=8)
+    def sensitivity_rollout(self, samples: int, directions: int, wrt: str = "theta") -> ca.Function:
+        """(s0, refs 2xN, theta, seeds, w) -> outputs 6xN and their derivatives along the K seeds (P x K over
+        the parameters, or size x K over the weights: `wrt` as sensitivity_step), 6K x N (row 6j + i: output i
+        along seed j). Machine code where the model has a compiler."""
+        function = self._sensitivity_rollout(samples, directions, wrt)
+        return function if self.compiler is None else self.compiler([function])[0]
+
+    def _sensitivity_rollout(self, samples: int, directions: int, wrt: str) -> ca.Function:
         n, m = len(STATES), len(PARAMETERS)
         s0, refs = ca.MX.sym("s0", n), ca.MX.sym("refs", 2, samples)
-        theta, seeds = ca.MX.sym("theta", m), ca.MX.sym("seeds", m, directions)
+        theta = ca.MX.sym("theta", m)
+        seeds = ca.MX.sym("seeds", {"theta": m, "w": self.representation.size}[wrt], directions)
         weights = ca.MX.sym("w", self.representation.size)
-        _, outputs = self.sensitivity_step(directions).mapaccum("sensitivity_acc", samples)(
-            ca.vertcat(s0, ca.MX.zeros(n * directions)), refs, ca.repmat(theta, 1, samples),
-            ca.repmat(ca.vec(seeds), 1, samples), ca.repmat(weights, 1, samples))
+        _, outputs = rolled(self.sensitivity_step(directions, wrt), ca.vertcat(s0, ca.MX.zeros(n * directions)),
+                             refs, theta, ca.vec(seeds), weights)
         return ca.Function("sensitivity_rollout", [s0, refs, theta, seeds, weights],
                            [outputs[:len(OUTPUTS), :], outputs[len(OUTPUTS):, :]],
                            ["s0", "refs", "theta", "seeds", "w"], ["y", "y_dot"])

@@ -23,7 +23,7 @@ from railswitch.models.integrators import ros2
 from railswitch.models.least_squares import levenberg_marquardt
 from railswitch.models.plant import Plant
 from railswitch.models.rail_models import FORCE_SCALE_N, CausalRail, NNRail, Representation
-from railswitch.models.reduced import ReducedParams, stock_rail_force
+from railswitch.models.reduced import OUTPUTS, Compiler, ReducedParams, stock_rail_force
 from railswitch.models.reference import Reference
 
 RATE_HZ = 50.0
@@ -214,7 +214,7 @@ ACCELERATION_INPUT_RIDGE = 1e3
 
 
 def causal_regression(representation: CausalRail, reduced: ReducedParams, data: list[RailData],
-                      threads: int = 1) -> Residuals:
+                      threads: int = 1, compiler: Compiler | None = None) -> Residuals:
     """g(x, v, a) minus the port force, in kN, plus a small ridge term, as functions of z.
 
     The port force is what the representation balances inside the reduced switch:
@@ -229,9 +229,9 @@ def causal_regression(representation: CausalRail, reduced: ReducedParams, data: 
     z = ca.SX.sym("z", representation.size)
     x, v, a, f = (ca.SX.sym(k) for k in "xvaf")
     r = (representation.force(x, v, a, z) - f - stock_rail_force(reduced, x, v)) / FORCE_SCALE_N
-    row = ca.Function("causal_row", [x, v, a, f, z], [r, ca.jacobian(r, z)])
-    rows = _map(row, columns.shape[1], threads)
-    alone = _map(ca.Function("causal_row_alone", [x, v, a, f, z], [r]), columns.shape[1], threads)
+    row = [ca.Function("causal_row", [x, v, a, f, z], [r, ca.jacobian(r, z)]),
+           ca.Function("causal_row_alone", [x, v, a, f, z], [r])]  # one sample: no data inside, so they compile
+    rows, alone = (_map(function, columns.shape[1], threads) for function in (compiler(row) if compiler else row))
     decay = np.full(representation.size, RIDGE)
     decay[representation.acceleration_input_weights()] = ACCELERATION_INPUT_RIDGE
     ridge = np.diag(np.sqrt(decay))
@@ -259,19 +259,47 @@ class SwitchTarget:
     rail_velocity_m_s: np.ndarray
 
 
+SWITCH_DIRECTIONS = 16  # weight directions carried through one sensitivity rollout of the switch stage
+_SWITCH_ROWS = [0, 3, 4]  # current, rail position and rail velocity among the reduced model's OUTPUTS
+_SWITCH_SCALES = np.array([CURRENT_RESIDUAL_A, POSITION_RESIDUAL_M, VELOCITY_RESIDUAL_M_S])
+
+
 def switch_residuals(reduced, targets: list[SwitchTarget]) -> Residuals:
-    """Current, rail position and velocity inside the reduced switch model, as functions of w."""
-    w = ca.MX.sym("w", reduced.representation.size)
-    blocks = []
-    for target in targets:
-        n = len(target.current_a)
-        y, _ = reduced.rollout(n)(target.initial_state, reduced.reference_columns(target.reference, n),
-                                 reduced.vector(), w)
-        blocks += [(y[0, :].T - target.current_a) / CURRENT_RESIDUAL_A,
-                   (y[3, :].T - target.rail_position_m) / POSITION_RESIDUAL_M,
-                   (y[4, :].T - target.rail_velocity_m_s) / VELOCITY_RESIDUAL_M_S]
-    residual = ca.vertcat(*blocks)
-    return _numeric(residual, w, "switch_residual")
+    """Current, rail position and velocity inside the reduced switch model, as functions of w.
+
+    The Jacobian comes from forward sensitivities carried through each step (ReducedSwitch.sensitivity_rollout
+    over the weights, SWITCH_DIRECTIONS at a time): the derivatives CasADi's AD of the rollout gives, from
+    Functions that hold no data (so they compile once per machine), at a fraction of the cost."""
+    size = reduced.representation.size
+    theta = reduced.vector()
+    runs = [(target, reduced.reference_columns(target.reference, len(target.current_a))) for target in targets]
+    measured = [np.vstack([t.current_a, t.rail_position_m, t.rail_velocity_m_s]) for t in targets]
+    blocks = [list(range(first, min(first + SWITCH_DIRECTIONS, size))) for first in range(0, size, SWITCH_DIRECTIONS)]
+
+    def residual(y, k: int) -> np.ndarray:
+        return ((np.asarray(y)[_SWITCH_ROWS] - measured[k]) / _SWITCH_SCALES[:, None]).ravel()
+
+    def linearise(w: np.ndarray):
+        rs, jacobians = [], []
+        for k, (target, refs) in enumerate(runs):
+            sensitivities = reduced.sensitivity_rollout(refs.shape[1], SWITCH_DIRECTIONS, "w")
+            columns = []
+            for block in blocks:
+                seeds = np.zeros((size, SWITCH_DIRECTIONS))
+                seeds[block, range(len(block))] = 1.0
+                y, y_dot = sensitivities(target.initial_state, refs, theta, seeds, w)
+                y_dot = np.asarray(y_dot).reshape(SWITCH_DIRECTIONS, len(OUTPUTS), -1)[:len(block)]
+                scaled = y_dot[:, _SWITCH_ROWS] / _SWITCH_SCALES[None, :, None]  # block x signals x samples
+                columns.append(scaled.reshape(len(block), -1).T)
+            rs.append(residual(y, k))
+            jacobians.append(np.hstack(columns))
+        return np.concatenate(rs), np.vstack(jacobians)
+
+    def cost(w: np.ndarray) -> float:
+        r = np.concatenate([residual(reduced.rollout(refs.shape[1])(target.initial_state, refs, theta, w)[0], k)
+                            for k, (target, refs) in enumerate(runs)])
+        return float(r @ r)
+    return Residuals(linearise, cost)
 
 
 # -- the whole recipe per representation ----------------------------------------------------------
@@ -323,9 +351,11 @@ def _fit(stage: str, fn: Residuals, z0: np.ndarray, iterations: int, progress: P
 
 
 def train(representation: Representation, plant: Plant, *, seed: int = 0, series_seeds=TRAIN_SEEDS,
-          iterations: int = 40, progress: Progress | None = None, threads: int = 1) -> Trained:
+          iterations: int = 40, progress: Progress | None = None, threads: int = 1,
+          compiler: Compiler | None = None) -> Trained:
     """Fit one representation to plant data, deterministically for a seed (and the same on any number of
-    `threads`, which share the data's segments and samples)."""
+    `threads`, which share the data's segments and samples); `compiler` makes the causal regression's
+    per-sample functions machine code."""
     from railswitch.models.reduced import ReducedSwitch
 
     data = training_data(plant, series_seeds)
@@ -335,9 +365,9 @@ def train(representation: Representation, plant: Plant, *, seed: int = 0, series
         z, stages["shooting"] = _fit("shooting", acausal_residuals(representation, ReducedParams(), data, threads),
                                      representation.z_from_weights(w0), iterations, progress)
         return Trained(representation.name, representation.weights_from_z(z), stages)
-    w, stages["regression"] = _fit("regression", causal_regression(representation, ReducedParams(), data, threads), w0,
-                                   iterations, progress)
-    reduced = ReducedSwitch(representation, w)
+    w, stages["regression"] = _fit("regression", causal_regression(representation, ReducedParams(), data, threads,
+                                                                   compiler), w0, iterations, progress)
+    reduced = ReducedSwitch(representation, w, compiler=compiler)
     targets = nominal_switch_targets(plant, reduced) + [random_switch_target(plant, reduced, series_seeds[0])]
     w, stages["switch"] = _fit("switch", switch_residuals(reduced, targets), w, max(iterations // 4, 1), progress)
     return Trained(representation.name, w, stages)

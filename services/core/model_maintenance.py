@@ -38,7 +38,8 @@ def train_and_save(name: str, *, seed: int = 0, iterations: int = 40, out_dir: s
             progress.update(tasks[stage], completed=iteration, cost=f"{cost:.4g}")
 
         plant = compiled_plant()
-        trained = train(representation, plant, seed=seed, iterations=iterations, progress=report, threads=threads)
+        trained = train(representation, plant, seed=seed, iterations=iterations, progress=report, threads=threads,
+                        compiler=MachineCode())
     seconds = time.perf_counter() - start
     provenance = {"seed": seed, "series_seeds": list(TRAIN_SEEDS), "series_seconds": 100.0, "sample_rate_hz": 50.0,
                   "iterations": iterations, "stages": trained.stages, "seconds": round(seconds, 1), "threads": threads}

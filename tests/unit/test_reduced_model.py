@@ -112,6 +112,29 @@ def test_sensitivity_rollout_gives_the_derivatives_of_the_rollout(name):
         np.testing.assert_allclose(block.ravel(order="F"), column, rtol=1e-8, atol=1e-9 * np.max(np.abs(column)))
 
 
+def test_the_switch_stage_of_training_has_the_jacobian_of_the_rollout_in_the_weights():
+    """Training's switch stage: sensitivities over the rail's weights, a block of them per rollout, equal CasADi's
+    AD of the rollout (the Jacobian the stage used to build, at ten times the cost)."""
+    from railswitch.models import training
+    from railswitch.models.reference import throw_reference
+
+    representation, weights = model_store.load("causal").representation, model_store.load("causal").weights
+    reduced = ReducedSwitch(representation, weights)
+    n, s0, reference = 80, reduced.initial_state(1.0, 0.0), throw_reference("left_to_right")
+    zeros = np.zeros(n)
+    stage = training.switch_residuals(reduced, [training.SwitchTarget(s0, reference, zeros, zeros, zeros)])
+    r, jacobian = stage.linearise(weights)
+    symbol = ca.MX.sym("w", representation.size)
+    y, _ = reduced.rollout(n)(s0, reduced.reference_columns(reference, n), reduced.vector(), symbol)
+    scaled = ca.vertcat(y[0, :].T / training.CURRENT_RESIDUAL_A, y[3, :].T / training.POSITION_RESIDUAL_M,
+                        y[4, :].T / training.VELOCITY_RESIDUAL_M_S)
+    expected = ca.Function("j", [symbol], [scaled, ca.jacobian(scaled, symbol)])(weights)
+    np.testing.assert_allclose(r, np.asarray(expected[0]).ravel(), rtol=1e-12)
+    assert stage.cost(weights) == pytest.approx(float(r @ r), rel=1e-12)
+    expected = np.asarray(expected[1])
+    np.testing.assert_allclose(jacobian, expected, rtol=1e-8, atol=1e-9 * np.max(np.abs(expected)))
+
+
 def test_describe_lists_each_reduced_model_with_states_parameters_and_equations():
     from railswitch.services.core.model_maintenance import describe_reduced
 
