@@ -34,7 +34,7 @@ import casadi as ca
 import numpy as np
 
 from railswitch.models.least_squares import levenberg_marquardt
-from railswitch.models.reduced import OUTPUTS, PARAMETERS, STATES, Compiler, ReducedSwitch
+from railswitch.models.reduced import OUTPUTS, PARAMETERS, STATES, Compiler, ReducedSwitch, rolled
 from railswitch.models.reference import Reference
 from railswitch.models.signals import SIGNAL_NAMES as MEASURED
 from railswitch.models.signals import MotorSignals
@@ -287,25 +287,23 @@ class ThrowEstimator:
         n, p, c = len(STATES), len(PARAMETERS), CHUNK_SAMPLES
         s0, refs = ca.MX.sym("s0", n), ca.MX.sym("refs", 2, c)
         theta, w = ca.MX.sym("theta", p), ca.MX.sym("w", reduced.representation.size)
-        states, outputs = reduced.step.mapaccum("chunk_acc", c)(s0, refs, ca.repmat(theta, 1, c), ca.repmat(w, 1, c))
-        chunk = ca.Function("model_chunk", [s0, refs, theta, w], [states[:, -1], outputs])
-        measured = ca.Function("measured_chunk", [s0, refs, theta, w], [states[:, -1], outputs[_MEASURED_ROWS, :]])
+        state, outputs = rolled(reduced.step, s0, refs, theta, w)
+        chunk = ca.Function("model_chunk", [s0, refs, theta, w], [state, outputs])
+        measured = ca.Function("measured_chunk", [s0, refs, theta, w], [state, outputs[_MEASURED_ROWS, :]])
         self.coarse = ReducedSwitch(reduced.representation, reduced.weights, reduced.params, GRID_RATE_HZ)
         g = self.grid_chunk = round(CHUNK_SAMPLES * GRID_RATE_HZ / MODEL_RATE_HZ)
         grid_refs = ca.MX.sym("refs", 2, g)
-        states, outputs = self.coarse.step.mapaccum("grid_acc", g)(s0, grid_refs, ca.repmat(theta, 1, g),
-                                                                   ca.repmat(w, 1, g))
-        coarse = ca.Function("grid_chunk", [s0, grid_refs, theta, w], [states[:, -1], outputs[_MEASURED_ROWS, :]])
+        state, outputs = rolled(self.coarse.step, s0, grid_refs, theta, w)
+        coarse = ca.Function("grid_chunk", [s0, grid_refs, theta, w], [state, outputs[_MEASURED_ROWS, :]])
         functions = [chunk, measured.map("model_chunk_grid", "serial", GRID_CAPACITY, [1, 3], []),
                      coarse.map("coarse_chunk_grid", "serial", GRID_CAPACITY, [1, 3], [])]
         for k in self.directions:
             aug, seeds = ca.MX.sym("s_dot", n * (1 + k)), ca.MX.sym("seeds", p * k)
             step = reduced.sensitivity_step(k)
-            states, outputs = step.mapaccum("sensitivity_acc", c)(aug, refs, ca.repmat(theta, 1, c),
-                                                                  ca.repmat(seeds, 1, c), ca.repmat(w, 1, c))
+            state, outputs = rolled(step, aug, refs, theta, seeds, w)
             rows = [j * len(OUTPUTS) + i for j in range(1, k + 1) for i in _MEASURED_ROWS]  # derivative rows
             functions.append(ca.Function(f"sensitivity_chunk{k}", [aug, refs, theta, seeds, w],
-                                         [states[:, -1], outputs[_MEASURED_ROWS, :], outputs[rows, :]]))
+                                         [state, outputs[_MEASURED_ROWS, :], outputs[rows, :]]))
         if compiler is not None:
             functions = compiler(functions)
         self._chunk, self._batch, self._grid, *sensitivities = [InPlace(f) for f in functions]
