@@ -480,9 +480,8 @@ class ThrowEstimator:
     def grid_starts(self, specs: list[HypothesisSpec], base: dict[str, float], throw: _Throw,
                     warm: dict[str, dict[str, float]] | None = None) -> dict[str, dict]:
         """Each hypothesis's best grid point by residual alone (every grid point of the throw in one batch, the
-        model at GRID_RATE_HZ),
-        with `base` (the nominal fit) everywhere else; a hypothesis's `warm` values (its fit to the switch's
-        previous throw) compete as one more point."""
+        model at GRID_RATE_HZ), with `base` (the nominal fit) everywhere else; a hypothesis's `warm` values
+        (its fit to the switch's previous throw) compete as one more point."""
         points = [(spec.mode, {**base, **spec.fixed, **point}) for spec in specs for point in spec.grid]
         points += [(spec.mode, {**base, **spec.fixed, **_free(spec, warm[spec.mode])})
                    for spec in specs if spec.mode in (warm or {})]
