@@ -306,22 +306,15 @@ class ReducedSwitch:
                            [ca.vertcat(s_next, ca.vec(s_next_dot)), ca.vertcat(y, ca.vec(y_dot))],
                            ["s_dot", "ref", "theta", "seeds", "w"], ["s_dot_next", "y_dot"])
 
-    @lru_cache(maxsize=8)
-    def sensitivity_rollout(self, samples: int, directions: int, wrt: str = "theta") -> ca.Function:
-        """(s0, refs 2xN, theta, seeds, w) -> outputs 6xN and their derivatives along the K seeds (P x K over
-        the parameters, or size x K over the weights: `wrt` as sensitivity_step), 6K x N (row 6j + i: output i
-        along seed j). Machine code where the model has a compiler."""
-        function = self._sensitivity_rollout(samples, directions, wrt)
-        return function if self.compiler is None else self.compiler([function])[0]
-
-    def _sensitivity_rollout(self, samples: int, directions: int, wrt: str) -> ca.Function:
+    def sensitivity_rollout(self, samples: int, directions: int) -> ca.Function:
+        """(s0, refs 2xN, theta, seeds PxK, w) -> outputs 6xN and their derivatives along the K parameter
+        seeds, 6K x N (row 6j + i: output i along seed j)."""
         n, m = len(STATES), len(PARAMETERS)
         s0, refs = ca.MX.sym("s0", n), ca.MX.sym("refs", 2, samples)
-        theta = ca.MX.sym("theta", m)
-        seeds = ca.MX.sym("seeds", {"theta": m, "w": self.representation.size}[wrt], directions)
+        theta, seeds = ca.MX.sym("theta", m), ca.MX.sym("seeds", m, directions)
         weights = ca.MX.sym("w", self.representation.size)
-        _, outputs = rolled(self.sensitivity_step(directions, wrt), ca.vertcat(s0, ca.MX.zeros(n * directions)),
-                             refs, theta, ca.vec(seeds), weights)
+        _, outputs = rolled(self.sensitivity_step(directions), ca.vertcat(s0, ca.MX.zeros(n * directions)), refs, theta,
+                            ca.vec(seeds), weights)
         return ca.Function("sensitivity_rollout", [s0, refs, theta, seeds, weights],
                            [outputs[:len(OUTPUTS), :], outputs[len(OUTPUTS):, :]],
                            ["s0", "refs", "theta", "seeds", "w"], ["y", "y_dot"])

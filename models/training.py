@@ -19,11 +19,12 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from railswitch.models.estimation import InPlace
 from railswitch.models.integrators import ros2
 from railswitch.models.least_squares import levenberg_marquardt
 from railswitch.models.plant import Plant
 from railswitch.models.rail_models import FORCE_SCALE_N, CausalRail, NNRail, Representation
-from railswitch.models.reduced import OUTPUTS, Compiler, ReducedParams, stock_rail_force
+from railswitch.models.reduced import OUTPUTS, PARAMETERS, STATES, Compiler, ReducedParams, rolled, stock_rail_force
 from railswitch.models.reference import Reference
 
 RATE_HZ = 50.0
@@ -260,44 +261,63 @@ class SwitchTarget:
 
 
 SWITCH_DIRECTIONS = 16  # weight directions carried through one sensitivity rollout of the switch stage
+SWITCH_CHUNK = 50  # samples per compiled call of the switch stage: one Function, whatever the targets' lengths
 _SWITCH_ROWS = [0, 3, 4]  # current, rail position and rail velocity among the reduced model's OUTPUTS
 _SWITCH_SCALES = np.array([CURRENT_RESIDUAL_A, POSITION_RESIDUAL_M, VELOCITY_RESIDUAL_M_S])
 
 
-def switch_residuals(reduced, targets: list[SwitchTarget]) -> Residuals:
+def switch_residuals(reduced, targets: list[SwitchTarget], compiler: Compiler | None = None) -> Residuals:
     """Current, rail position and velocity inside the reduced switch model, as functions of w.
 
-    The Jacobian comes from forward sensitivities carried through each step (ReducedSwitch.sensitivity_rollout
-    over the weights, SWITCH_DIRECTIONS at a time): the derivatives CasADi's AD of the rollout gives, from
-    Functions that hold no data (so they compile once per machine), at a fraction of the cost."""
-    size = reduced.representation.size
-    theta = reduced.vector()
-    runs = [(target, reduced.reference_columns(target.reference, len(target.current_a))) for target in targets]
+    The Jacobian comes from forward sensitivities carried through each step (ReducedSwitch.sensitivity_step over
+    the weights, SWITCH_DIRECTIONS at a time): the derivatives CasADi's AD of the rollout gives, at a fraction of
+    its cost. The model runs in chunks of SWITCH_CHUNK samples through two Functions that hold no data, so
+    `compiler` makes them machine code once per machine, whatever the targets."""
+    size, n, k = reduced.representation.size, len(STATES), SWITCH_DIRECTIONS
+    refs, theta, w = ca.MX.sym("refs", 2, SWITCH_CHUNK), ca.MX.sym("theta", len(PARAMETERS)), ca.MX.sym("w", size)
+    s0, aug, seeds = ca.MX.sym("s0", n), ca.MX.sym("s_dot", n * (1 + k)), ca.MX.sym("seeds", size * k)
+    functions = [ca.Function("switch_chunk", [s0, refs, theta, w], list(rolled(reduced.step, s0, refs, theta, w))),
+                 ca.Function("switch_sensitivity_chunk", [aug, refs, theta, seeds, w],
+                             list(rolled(reduced.sensitivity_step(k, "w"), aug, refs, theta, seeds, w)))]
+    chunk, sensitivity_chunk = (InPlace(f) for f in (compiler(functions) if compiler is not None else functions))
+    nominal = reduced.vector()
+    runs = []
+    for target in targets:
+        chunks = -(-len(target.current_a) // SWITCH_CHUNK)
+        columns = reduced.reference_columns(target.reference, chunks * SWITCH_CHUNK)
+        runs.append((target, [columns[:, c * SWITCH_CHUNK:(c + 1) * SWITCH_CHUNK] for c in range(chunks)]))
     measured = [np.vstack([t.current_a, t.rail_position_m, t.rail_velocity_m_s]) for t in targets]
-    blocks = [list(range(first, min(first + SWITCH_DIRECTIONS, size))) for first in range(0, size, SWITCH_DIRECTIONS)]
+    blocks = [list(range(first, min(first + k, size))) for first in range(0, size, k)]
 
-    def residual(y, k: int) -> np.ndarray:
-        return ((np.asarray(y)[_SWITCH_ROWS] - measured[k]) / _SWITCH_SCALES[:, None]).ravel()
+    def residual(y: np.ndarray, index: int) -> np.ndarray:
+        return ((y[_SWITCH_ROWS, :measured[index].shape[1]] - measured[index]) / _SWITCH_SCALES[:, None]).ravel()
 
-    def linearise(w: np.ndarray):
+    def rolled_out(function: InPlace, start: np.ndarray, chunks: list[np.ndarray], *held) -> np.ndarray:
+        state, outputs = start, []
+        for columns in chunks:
+            state, y = function(state, columns, nominal, *held)
+            outputs.append(y)
+        return np.hstack(outputs)
+
+    def linearise(value: np.ndarray):
         rs, jacobians = [], []
-        for k, (target, refs) in enumerate(runs):
-            sensitivities = reduced.sensitivity_rollout(refs.shape[1], SWITCH_DIRECTIONS, "w")
+        for index, (target, chunks) in enumerate(runs):
             columns = []
             for block in blocks:
-                seeds = np.zeros((size, SWITCH_DIRECTIONS))
-                seeds[block, range(len(block))] = 1.0
-                y, y_dot = sensitivities(target.initial_state, refs, theta, seeds, w)
-                y_dot = np.asarray(y_dot).reshape(SWITCH_DIRECTIONS, len(OUTPUTS), -1)[:len(block)]
+                directions = np.zeros((size, k))
+                directions[block, range(len(block))] = 1.0
+                out = rolled_out(sensitivity_chunk, np.concatenate([target.initial_state, np.zeros(n * k)]), chunks,
+                                 directions.ravel(order="F"), value)
+                y_dot = out[len(OUTPUTS):].reshape(k, len(OUTPUTS), -1)[:len(block), :, :measured[index].shape[1]]
                 scaled = y_dot[:, _SWITCH_ROWS] / _SWITCH_SCALES[None, :, None]  # block x signals x samples
                 columns.append(scaled.reshape(len(block), -1).T)
-            rs.append(residual(y, k))
+            rs.append(residual(out[:len(OUTPUTS)], index))
             jacobians.append(np.hstack(columns))
         return np.concatenate(rs), np.vstack(jacobians)
 
-    def cost(w: np.ndarray) -> float:
-        r = np.concatenate([residual(reduced.rollout(refs.shape[1])(target.initial_state, refs, theta, w)[0], k)
-                            for k, (target, refs) in enumerate(runs)])
+    def cost(value: np.ndarray) -> float:
+        r = np.concatenate([residual(rolled_out(chunk, target.initial_state, chunks, value), index)
+                            for index, (target, chunks) in enumerate(runs)])
         return float(r @ r)
     return Residuals(linearise, cost)
 
@@ -343,7 +363,8 @@ def random_switch_target(plant: Plant, reduced, seed: int, duration_s: float = 3
 FIT_TOLERANCE = 1e-6  # relative decrease of the training cost below which a stage has converged
 
 
-def _fit(stage: str, fn: Residuals, z0: np.ndarray, iterations: int, progress: Progress | None) -> tuple[np.ndarray, dict]:
+def _fit(stage: str, fn: Residuals, z0: np.ndarray, iterations: int,
+         progress: Progress | None) -> tuple[np.ndarray, dict]:
     """One training stage: Levenberg-Marquardt, unbounded (bounds live in the parametrisations)."""
     result = levenberg_marquardt(fn.linearise, z0, cost=fn.cost, iterations=iterations, tolerance=FIT_TOLERANCE,
                                  progress=None if progress is None else (lambda k, cost: progress(stage, k, cost)))
@@ -369,5 +390,6 @@ def train(representation: Representation, plant: Plant, *, seed: int = 0, series
                                                                    compiler), w0, iterations, progress)
     reduced = ReducedSwitch(representation, w, compiler=compiler)
     targets = nominal_switch_targets(plant, reduced) + [random_switch_target(plant, reduced, series_seeds[0])]
-    w, stages["switch"] = _fit("switch", switch_residuals(reduced, targets), w, max(iterations // 4, 1), progress)
+    w, stages["switch"] = _fit("switch", switch_residuals(reduced, targets, compiler), w, max(iterations // 4, 1),
+                                progress)
     return Trained(representation.name, w, stages)
