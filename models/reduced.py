@@ -284,7 +284,6 @@ class ReducedSwitch:
         return ca.Function("rollout", [s0, refs, theta, w], [outputs, state],
                            ["s0", "refs", "theta", "w"], ["y", "s_end"])
 
-    @lru_cache(maxsize=8)
     def sensitivity_step(self, directions: int, wrt: str = "theta") -> ca.Function:
         """One sample carrying K forward sensitivities: (s and its K derivatives stacked, ref, theta, the K
         seeds flattened, w) -> (the same one sample later, outputs 6 and their derivatives 6K). The seeds are

@@ -376,7 +376,7 @@ def train(representation: Representation, plant: Plant, *, seed: int = 0, series
           compiler: Compiler | None = None) -> Trained:
     """Fit one representation to plant data, deterministically for a seed (and the same on any number of
     `threads`, which share the data's segments and samples); `compiler` makes the causal regression's
-    per-sample functions machine code."""
+    per-sample functions and the fine-tuning's chunks machine code."""
     from railswitch.models.reduced import ReducedSwitch
 
     data = training_data(plant, series_seeds)
@@ -388,7 +388,7 @@ def train(representation: Representation, plant: Plant, *, seed: int = 0, series
         return Trained(representation.name, representation.weights_from_z(z), stages)
     w, stages["regression"] = _fit("regression", causal_regression(representation, ReducedParams(), data, threads,
                                                                    compiler), w0, iterations, progress)
-    reduced = ReducedSwitch(representation, w, compiler=compiler)
+    reduced = ReducedSwitch(representation, w)
     targets = nominal_switch_targets(plant, reduced) + [random_switch_target(plant, reduced, series_seeds[0])]
     w, stages["switch"] = _fit("switch", switch_residuals(reduced, targets, compiler), w, max(iterations // 4, 1),
                                 progress)
