@@ -13,6 +13,7 @@ Fits use CasADi's automatic differentiation and Levenberg-Marquardt (models/leas
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -266,20 +267,27 @@ _SWITCH_ROWS = [0, 3, 4]  # current, rail position and rail velocity among the r
 _SWITCH_SCALES = np.array([CURRENT_RESIDUAL_A, POSITION_RESIDUAL_M, VELOCITY_RESIDUAL_M_S])
 
 
-def switch_residuals(reduced, targets: list[SwitchTarget], compiler: Compiler | None = None) -> Residuals:
+def switch_functions(reduced) -> list[ca.Function]:
+    """The switch stage's two Functions: the model over SWITCH_CHUNK samples, and the same with the forward
+    sensitivities of SWITCH_DIRECTIONS weight directions. The weights are an input, so they hold no data and
+    depend on the representation alone: one compile per machine, whatever the weights or the targets."""
+    size, n, k = reduced.representation.size, len(STATES), SWITCH_DIRECTIONS
+    refs, theta, w = ca.MX.sym("refs", 2, SWITCH_CHUNK), ca.MX.sym("theta", len(PARAMETERS)), ca.MX.sym("w", size)
+    s0, aug, seeds = ca.MX.sym("s0", n), ca.MX.sym("s_dot", n * (1 + k)), ca.MX.sym("seeds", size * k)
+    return [ca.Function("switch_chunk", [s0, refs, theta, w], list(rolled(reduced.step, s0, refs, theta, w))),
+            ca.Function("switch_sensitivity_chunk", [aug, refs, theta, seeds, w],
+                        list(rolled(reduced.sensitivity_step(k, "w"), aug, refs, theta, seeds, w)))]
+
+
+def switch_residuals(reduced, targets: list[SwitchTarget], functions: list[ca.Function] | None = None) -> Residuals:
     """Current, rail position and velocity inside the reduced switch model, as functions of w.
 
     The Jacobian comes from forward sensitivities carried through each step (ReducedSwitch.sensitivity_step over
     the weights, SWITCH_DIRECTIONS at a time): the derivatives CasADi's AD of the rollout gives, at a fraction of
-    its cost. The model runs in chunks of SWITCH_CHUNK samples through two Functions that hold no data, so
-    `compiler` makes them machine code once per machine, whatever the targets."""
+    its cost. The model runs in chunks of SWITCH_CHUNK samples through `functions` (switch_functions, compiled or
+    not; built here when not given)."""
     size, n, k = reduced.representation.size, len(STATES), SWITCH_DIRECTIONS
-    refs, theta, w = ca.MX.sym("refs", 2, SWITCH_CHUNK), ca.MX.sym("theta", len(PARAMETERS)), ca.MX.sym("w", size)
-    s0, aug, seeds = ca.MX.sym("s0", n), ca.MX.sym("s_dot", n * (1 + k)), ca.MX.sym("seeds", size * k)
-    functions = [ca.Function("switch_chunk", [s0, refs, theta, w], list(rolled(reduced.step, s0, refs, theta, w))),
-                 ca.Function("switch_sensitivity_chunk", [aug, refs, theta, seeds, w],
-                             list(rolled(reduced.sensitivity_step(k, "w"), aug, refs, theta, seeds, w)))]
-    chunk, sensitivity_chunk = (InPlace(f) for f in (compiler(functions) if compiler is not None else functions))
+    chunk, sensitivity_chunk = (InPlace(f) for f in (functions or switch_functions(reduced)))
     nominal = reduced.vector()
     runs = []
     for target in targets:
@@ -386,10 +394,16 @@ def train(representation: Representation, plant: Plant, *, seed: int = 0, series
         z, stages["shooting"] = _fit("shooting", acausal_residuals(representation, ReducedParams(), data, threads),
                                      representation.z_from_weights(w0), iterations, progress)
         return Trained(representation.name, representation.weights_from_z(z), stages)
-    w, stages["regression"] = _fit("regression", causal_regression(representation, ReducedParams(), data, threads,
-                                                                   compiler), w0, iterations, progress)
+    functions = switch_functions(ReducedSwitch(representation, w0))
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        # The fine-tuning's machine code needs the model's structure, not the regression's weights: it compiles
+        # (a C compiler in its own process, the longest compile of training) while the regression runs.
+        compiled = None if compiler is None else pool.submit(compiler, functions)
+        w, stages["regression"] = _fit("regression", causal_regression(representation, ReducedParams(), data, threads,
+                                                                       compiler), w0, iterations, progress)
+        functions = functions if compiled is None else compiled.result()
     reduced = ReducedSwitch(representation, w)
     targets = nominal_switch_targets(plant, reduced) + [random_switch_target(plant, reduced, series_seeds[0])]
-    w, stages["switch"] = _fit("switch", switch_residuals(reduced, targets, compiler), w, max(iterations // 4, 1),
+    w, stages["switch"] = _fit("switch", switch_residuals(reduced, targets, functions), w, max(iterations // 4, 1),
                                 progress)
     return Trained(representation.name, w, stages)
