@@ -5,11 +5,13 @@ build and weather, models/reduced.py PARAMETERS) within bounds, holds the others
 fits the model to the throw's measured current, angle and angular velocity (or the current
 alone, where a unit logs nothing else), each scaled by its range, so the cost is the mean
 squared error of the scaled signals.
-Bounded Levenberg-Marquardt (models/least_squares.py) on exact Jacobians; where the
-error is multimodal (a bolt offset or an obstacle position moves the instant something
-happens, not only its size) the best of a grid of cheap residual evaluations (the model at its
-20 ms training step, GRID_RATE_HZ) starts it, or the hypothesis's fit to the switch's previous
-throw where that fits better.
+Bounded Levenberg-Marquardt (models/least_squares.py): every step from an exact Jacobian, trial
+points judged by their residual, and at an accepted point Broyden's update of the last Jacobian
+deciding first whether the fit has converged (one that has ends on that update). Where the error
+is multimodal (a bolt offset or an obstacle position moves the instant something happens, not
+only its size) the best of a grid of cheap residual evaluations (the model at its 20 ms training
+step, GRID_RATE_HZ) starts it, or the hypothesis's fit to the switch's previous throw where that
+fits better.
 
 The model runs on its own grid (`MODEL_RATE_HZ`, one integration step per model sample)
 in compiled chunks of `CHUNK_SAMPLES`, as many as the throw needs; the residual compares
@@ -262,7 +264,7 @@ class _Timeline:
 
 
 @dataclass(frozen=True)
-class _Throw:
+class PreparedThrow:
     """A measurement prepared for the model: its start state and where its samples fall on the model's
     samples (and on the grid's)."""
 
@@ -311,23 +313,23 @@ class ThrowEstimator:
         self.weights = reduced.weights
 
     # -- the model over one throw -------------------------------------------------------------
-    def prepare(self, m: Measurement) -> _Throw:
+    def prepare(self, m: Measurement) -> PreparedThrow:
         s0 = self.reduced.initial_state(m.start_rail_m, m.start_angle_rad)
         rows = [MEASURED.index(name) for name in m.signals.names]
-        return _Throw(s0, _Timeline.of(self.reduced, m, CHUNK_SAMPLES), _Timeline.of(self.coarse, m, self.grid_chunk),
+        return PreparedThrow(s0, _Timeline.of(self.reduced, m, CHUNK_SAMPLES), _Timeline.of(self.coarse, m, self.grid_chunk),
                       m.signals.matrix(), 1.0 / m.scales(), rows)
 
     @staticmethod
-    def _at_samples(y: np.ndarray, throw: _Throw) -> np.ndarray:
+    def _at_samples(y: np.ndarray, throw: PreparedThrow) -> np.ndarray:
         """Model values (... x model samples, the start first) interpolated at the samples' times: ... x N."""
         return throw.model.at_samples(y)
 
     @staticmethod
-    def _start_outputs(throw: _Throw, names=MEASURED) -> np.ndarray:
+    def _start_outputs(throw: PreparedThrow, names=MEASURED) -> np.ndarray:
         """The outputs at the start (at rest: no drive force)."""
         return np.array([throw.s0[STATES.index(name)] if name in STATES else 0.0 for name in names])
 
-    def all_outputs(self, theta: np.ndarray, throw: _Throw) -> np.ndarray:
+    def all_outputs(self, theta: np.ndarray, throw: PreparedThrow) -> np.ndarray:
         """Every output of the model (OUTPUTS), 6 x (1 + model samples), the start first."""
         state, blocks = throw.s0, [self._start_outputs(throw, OUTPUTS)[:, None]]
         for refs in throw.model.refs:
@@ -335,24 +337,24 @@ class ThrowEstimator:
             blocks.append(y)
         return np.hstack(blocks)
 
-    def outputs(self, theta: np.ndarray, throw: _Throw) -> np.ndarray:
+    def outputs(self, theta: np.ndarray, throw: PreparedThrow) -> np.ndarray:
         """The measured outputs of the model, 3 x (1 + model samples), the start first."""
         return self.all_outputs(theta, throw)[_MEASURED_ROWS]
 
-    def _scaled(self, differences: np.ndarray, throw: _Throw) -> np.ndarray:
+    def _scaled(self, differences: np.ndarray, throw: PreparedThrow) -> np.ndarray:
         """Differences (signals measured x N) scaled, stacked signal by signal, over sqrt(their number): r'r is
         the MSE."""
         return (differences * throw.inverse_scale[:, None]).ravel() / np.sqrt(differences.size)
 
-    def residuals(self, theta: np.ndarray, throw: _Throw) -> np.ndarray:
+    def residuals(self, theta: np.ndarray, throw: PreparedThrow) -> np.ndarray:
         return self._scaled(self._at_samples(self.outputs(theta, throw)[throw.rows], throw) - throw.measured.T, throw)
 
-    def cost(self, theta: np.ndarray, throw: _Throw) -> float:
+    def cost(self, theta: np.ndarray, throw: PreparedThrow) -> float:
         r = self.residuals(theta, throw)
         value = float(r @ r)
         return value if np.isfinite(value) else np.inf
 
-    def costs(self, thetas: np.ndarray, throw: _Throw, coarse: bool = False) -> np.ndarray:
+    def costs(self, thetas: np.ndarray, throw: PreparedThrow, coarse: bool = False) -> np.ndarray:
         """r'r of many parameter vectors (columns), GRID_CAPACITY to a mapped call; `coarse`: with the model at
         GRID_RATE_HZ (what the grid ranks its points by)."""
         evaluate, timeline, chunk = (self._grid, throw.grid, self.grid_chunk) if coarse else \
@@ -375,7 +377,7 @@ class ThrowEstimator:
         values = np.concatenate(out)
         return np.where(np.isfinite(values), values, np.inf)
 
-    def linearise(self, theta: np.ndarray, throw: _Throw, index: list[int]) -> tuple[np.ndarray, np.ndarray]:
+    def linearise(self, theta: np.ndarray, throw: PreparedThrow, index: list[int]) -> tuple[np.ndarray, np.ndarray]:
         """Residual and its Jacobian columns for the parameters at `index`."""
         k = min((d for d in self.directions if d >= len(index)), default=None)
         if k is None:
@@ -397,7 +399,7 @@ class ThrowEstimator:
         return r, scaled.reshape(len(index), -1).T
 
     # -- hypotheses ------------------------------------------------------------------------
-    def fit(self, spec: HypothesisSpec, throw: _Throw, start: dict[str, float] | None = None, iterations: int = 20,
+    def fit(self, spec: HypothesisSpec, throw: PreparedThrow, start: dict[str, float] | None = None, iterations: int = 20,
             rival: float = np.inf, prior_weight: float = 0.0) -> Estimate:
         """Fit one hypothesis from `start` (a warm start or its grid's best point; elsewhere held or nominal).
 
@@ -427,13 +429,13 @@ class ThrowEstimator:
             r, jacobian = self.linearise(at(z), throw, index)
             return np.concatenate([r, prior.residuals(z)]), np.vstack([jacobian, prior.jacobian(z)])
 
-        def objective(z: np.ndarray) -> float:
-            return self.cost(at(z), throw) + float(np.sum(prior.residuals(z) ** 2))
+        def residual(z: np.ndarray) -> np.ndarray:
+            return np.concatenate([self.residuals(at(z), throw), prior.residuals(z)])
 
         def keep_going(cost: float, decrease: float, k: int) -> bool:  # can it still beat the rival?
             return cost * (1.0 - decrease) ** (iterations - k) <= rival
 
-        solution = levenberg_marquardt(linearise, theta[index], cost=objective, lower=low, upper=high,
+        solution = levenberg_marquardt(linearise, theta[index], residual=residual, lower=low, upper=high,
                                        scale=np.array([SCALES[n] for n in free]), iterations=iterations,
                                        tolerance=TOLERANCE, keep_going=keep_going)
         data_rows = solution.residual.size - prior.rows
@@ -470,14 +472,14 @@ class ThrowEstimator:
         return np.where(np.isfinite(std) & (std > 0), np.minimum(std, high - low), high - low)
 
     @staticmethod
-    def noise_weight(throw: _Throw) -> float:
+    def noise_weight(throw: PreparedThrow) -> float:
         """The white measurement noise's variance (scaled, per residual, from the median second difference
         of each signal) over the number of residuals: the least w of HypothesisSpec."""
         second = np.diff(throw.measured * throw.inverse_scale[None, :], n=2, axis=0)
         noise = np.median(np.abs(second), axis=0) / (0.6745 * np.sqrt(6.0))  # a white sequence's MAD, per signal
         return float(np.mean(noise**2)) / throw.measured.size
 
-    def grid_starts(self, specs: list[HypothesisSpec], base: dict[str, float], throw: _Throw,
+    def grid_starts(self, specs: list[HypothesisSpec], base: dict[str, float], throw: PreparedThrow,
                     warm: dict[str, dict[str, float]] | None = None) -> dict[str, dict]:
         """Each hypothesis's best grid point by residual alone (every grid point of the throw in one batch, the
         model at GRID_RATE_HZ), with `base` (the nominal fit) everywhere else; a hypothesis's `warm` values
@@ -494,7 +496,7 @@ class ThrowEstimator:
                 best[mode] = (cost, point)
         return {mode: point for mode, (_, point) in best.items()}
 
-    def fit_all(self, m: Measurement, specs: dict[str, HypothesisSpec], model_weight: float = 0.0,
+    def fit_all(self, m: Measurement | PreparedThrow, specs: dict[str, HypothesisSpec], model_weight: float = 0.0,
                 joint_when: Callable[[dict[str, Estimate]], bool] | None = None,
                 warm: dict[str, dict[str, float]] | None = None) -> dict[str, Estimate]:
         """The nominal hypothesis first; each fault mode started from the nominal fit (its own parameters from
@@ -511,7 +513,7 @@ class ThrowEstimator:
         Every hypothesis of the throw shares one prior weight, so their objectives compare: the larger of
         the throw's noise (noise_weight) and `model_weight`, the residual variance over the effective number
         of samples that the model's own error leaves on a healthy throw."""
-        throw = self.prepare(m)
+        throw = m if isinstance(m, PreparedThrow) else self.prepare(m)
         weight = max(self.noise_weight(throw), model_weight)
         warm = warm or {}
         start = self._better_start(specs["nominal"], throw, weight, None, warm.get("nominal"))
@@ -531,7 +533,7 @@ class ThrowEstimator:
             out["joint"] = self.fit(specs["joint"], throw, start, prior_weight=weight)
         return out
 
-    def _better_start(self, spec: HypothesisSpec, throw: _Throw, weight: float, start: dict[str, float] | None,
+    def _better_start(self, spec: HypothesisSpec, throw: PreparedThrow, weight: float, start: dict[str, float] | None,
                       warm: dict[str, float] | None) -> dict[str, float] | None:
         """`warm` where its objective (MSE and priors' charge) is below that of `start` (None: the nominal
         values); else `start`."""
@@ -550,9 +552,9 @@ class ThrowEstimator:
         candidate = _free(spec, warm)
         return candidate if objective(candidate) < objective(_free(spec, start or {})) else start
 
-    def simulate(self, m: Measurement, values: dict[str, float]) -> dict[str, np.ndarray]:
+    def simulate(self, m: Measurement | PreparedThrow, values: dict[str, float]) -> dict[str, np.ndarray]:
         """The model's outputs at the samples' times under `values` (nominal elsewhere)."""
-        throw = self.prepare(m)
+        throw = m if isinstance(m, PreparedThrow) else self.prepare(m)
         return dict(zip(OUTPUTS, self._at_samples(self.all_outputs(self.reduced.vector(values), throw), throw)))
 
 

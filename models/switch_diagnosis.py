@@ -529,15 +529,16 @@ class SwitchDiagnoser:
         weight = self.prior.model_weight if provisional else self.baseline.model_weight()
         gains = self._gains(throw.direction)
         previous = self.latest.get(throw.direction)
+        prepared = self.estimator.prepare(m)  # once for the fits and the fitted outputs
         estimates = self.estimator.fit_all(
-            m, self.specs(throw.direction), weight,
+            prepared, self.specs(throw.direction), weight,
             joint_when=lambda fits: judge(throw.direction, fits, gains, self.evidence,
                                           self.negligible(fits))[0] != "nominal",
             warm=None if previous is None else {mode: e.values for mode, e in previous.estimates.items()})
         mode, found = judge(throw.direction, estimates, gains, self.evidence, self.negligible(estimates))
         for name, seen in found.items():
             self.evidence[name] = [seen, *self.evidence.get(name, [])][:EVIDENCE_THROWS]
-        fitted = self.estimator.simulate(m, estimates[mode].values)
+        fitted = self.estimator.simulate(prepared, estimates[mode].values)
         reported = {name: self._report(throw.direction, e) for name, e in estimates.items()}
         hidden = self._unobservable(throw.direction, estimates["nominal"].mse)
         reported[hidden.mode] = hidden

@@ -7,7 +7,7 @@ from railswitch.models.least_squares import levenberg_marquardt
 def _linear_problem(seed: int = 3):
     rng = np.random.default_rng(seed)
     a, b = rng.normal(size=(40, 3)), rng.normal(size=40)
-    calls = {"linearise": 0, "cost": 0}
+    calls = {"linearise": 0, "cost": 0, "residual": 0}
 
     def linearise(z):
         calls["linearise"] += 1
@@ -18,11 +18,15 @@ def _linear_problem(seed: int = 3):
         r = a @ z - b
         return float(r @ r)
 
-    return np.linalg.lstsq(a, b, rcond=None)[0], linearise, cost, calls
+    def residual(z):
+        calls["residual"] += 1
+        return a @ z - b
+
+    return np.linalg.lstsq(a, b, rcond=None)[0], linearise, cost, calls, residual
 
 
 def test_a_fit_reaches_the_least_squares_solution_from_afar():
-    best, linearise, cost, _ = _linear_problem()
+    best, linearise, cost, _, _ = _linear_problem()
     solution = levenberg_marquardt(linearise, best + 5.0, cost=cost, tolerance=1e-10)
     np.testing.assert_allclose(solution.z, best, atol=1e-6)
 
@@ -30,13 +34,65 @@ def test_a_fit_reaches_the_least_squares_solution_from_afar():
 def test_a_fit_started_at_its_minimum_spends_no_rollout_on_a_step():
     """Converged is known from the linearisation at the start: the step it predicts lowers r'r by less than the
     tolerance, so no trial point is evaluated and no second Jacobian made (the estimator's warm starts)."""
-    best, linearise, cost, calls = _linear_problem()
+    best, linearise, cost, calls, _ = _linear_problem()
     solution = levenberg_marquardt(linearise, best, cost=cost)
-    assert calls == {"linearise": 1, "cost": 0}
+    assert calls == {"linearise": 1, "cost": 0, "residual": 0}
     np.testing.assert_array_equal(solution.z, best)
 
 
 def test_a_fit_a_little_off_its_minimum_takes_one_step_and_stops():
-    best, linearise, cost, calls = _linear_problem()
+    best, linearise, cost, calls, _ = _linear_problem()
     levenberg_marquardt(linearise, best + 0.1, cost=cost)
-    assert calls == {"linearise": 2, "cost": 1}  # start, the step's trial, the Jacobian there; nothing after
+    assert calls == {"linearise": 2, "cost": 1, "residual": 0}  # start, the step's trial, the Jacobian there; nothing after
+
+
+def _curved_problem():
+    """A residual whose Jacobian changes from point to point (exponential decays): Broyden's update of it is
+    exact only along the step taken."""
+    t = np.linspace(0.0, 3.0, 30)
+    truth = np.array([2.0, 0.7])
+    data = truth[0] * np.exp(-truth[1] * t)
+    calls = {"linearise": 0, "residual": 0}
+
+    def residual(z):
+        calls["residual"] += 1
+        return z[0] * np.exp(-z[1] * t) - data + 1e-3 * np.cos(7.0 * t)  # a little misfit: r'r stays above 0
+
+    def linearise(z):
+        calls["linearise"] += 1
+        calls["residual"] -= 1
+        return residual(z), np.column_stack([np.exp(-z[1] * t), -z[0] * t * np.exp(-z[1] * t)])
+
+    return truth, residual, linearise, calls
+
+
+def test_with_the_residual_alone_a_fit_ends_without_a_jacobian_at_its_last_point():
+    """Near the minimum one exact Jacobian (at the start) serves: the accepted step's Broyden update predicts
+    no visible decrease, so no second one is made."""
+    best, linearise, cost, calls, residual = _linear_problem()
+    solution = levenberg_marquardt(linearise, best + 0.1, residual=residual)
+    assert calls == {"linearise": 1, "cost": 0, "residual": 1}
+    np.testing.assert_array_equal(solution.z, levenberg_marquardt(linearise, best + 0.1, cost=cost).z)  # same step
+    np.testing.assert_allclose(solution.jacobian, linearise(best)[1], atol=1e-12)  # a linear residual's, exactly
+
+
+def test_with_the_residual_alone_a_curved_fit_takes_the_same_steps_to_the_same_minimum():
+    """The update only decides whether the fit has converged: every step is taken from an exact Jacobian, so
+    the fit visits the points the exact one does and ends at its minimum, with fewer Jacobians."""
+    _, residual, linearise, calls = _curved_problem()
+    start = np.array([1.0, 1.5])
+    exact = levenberg_marquardt(linearise, start, cost=lambda z: float(residual(z) @ residual(z)), tolerance=1e-12)
+    exact_jacobians = calls["linearise"]
+    calls.update(linearise=0, residual=0)
+    updated = levenberg_marquardt(linearise, start, residual=residual, tolerance=1e-12)
+    assert updated.history == exact.history[:len(updated.history)]
+    np.testing.assert_allclose(updated.z, exact.z, rtol=1e-6)
+    assert calls["linearise"] < exact_jacobians
+
+
+def test_the_updated_jacobian_is_exact_along_the_step_taken():
+    _, residual, linearise, _ = _curved_problem()
+    start = np.array([1.0, 1.5])
+    one = levenberg_marquardt(linearise, start, residual=residual, iterations=1)
+    np.testing.assert_allclose(one.jacobian @ (one.z - start), residual(one.z) - residual(start), atol=1e-12)
+    assert not np.allclose(linearise(start)[1] @ (one.z - start), residual(one.z) - residual(start), atol=1e-3)
