@@ -185,7 +185,7 @@ throws = 4
 """
 
 
-BURST = 5  # records of each of three switches of the victim's
+BURST = 8  # records of each of three switches of the victim's
 
 
 def test_a_killed_diagnosers_switches_and_throws_in_flight_go_to_the_others_with_no_throw_lost(tmp_path):
@@ -212,7 +212,10 @@ def test_a_killed_diagnosers_switches_and_throws_in_flight_go_to_the_others_with
         for _ in range(BURST):
             for switch in burst:
                 put_record(session, source.next(switch))
-        time.sleep(0.5)  # the others hold the burst; the victim is through a few of its 15 throws (50 ms or more each)
+        # The others hold the burst; the victim is killed once it has published its first Diagnosis of it, the rest (24
+        # throws at 25 ms or more each) still in flight: a wait on that event, not on how fast the victim diagnoses.
+        wait_for(lambda: any(collector.counts()[switch, 0] for switch in burst), 30, "the victim's first of the burst",
+                 poll_s=0.02)
         services.stop(diagnosers[0], signal.SIGKILL)
         killed_s = time.monotonic()
         assert simulator.wait(120) == 0, services.log(simulator)
