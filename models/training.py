@@ -13,8 +13,8 @@ Fits use CasADi's automatic differentiation and Levenberg-Marquardt (models/leas
 """
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import casadi as ca
