@@ -313,11 +313,14 @@ class ThrowEstimator:
         self.weights = reduced.weights
 
     # -- the model over one throw -------------------------------------------------------------
-    def prepare(self, m: Measurement) -> PreparedThrow:
+    def prepare(self, m: Measurement | PreparedThrow) -> PreparedThrow:
+        """The measurement prepared for the model (one already prepared as it is)."""
+        if isinstance(m, PreparedThrow):
+            return m
         s0 = self.reduced.initial_state(m.start_rail_m, m.start_angle_rad)
         rows = [MEASURED.index(name) for name in m.signals.names]
-        return PreparedThrow(s0, _Timeline.of(self.reduced, m, CHUNK_SAMPLES), _Timeline.of(self.coarse, m, self.grid_chunk),
-                      m.signals.matrix(), 1.0 / m.scales(), rows)
+        return PreparedThrow(s0, _Timeline.of(self.reduced, m, CHUNK_SAMPLES),
+                             _Timeline.of(self.coarse, m, self.grid_chunk), m.signals.matrix(), 1.0 / m.scales(), rows)
 
     @staticmethod
     def _at_samples(y: np.ndarray, throw: PreparedThrow) -> np.ndarray:
@@ -399,8 +402,8 @@ class ThrowEstimator:
         return r, scaled.reshape(len(index), -1).T
 
     # -- hypotheses ------------------------------------------------------------------------
-    def fit(self, spec: HypothesisSpec, throw: PreparedThrow, start: dict[str, float] | None = None, iterations: int = 20,
-            rival: float = np.inf, prior_weight: float = 0.0) -> Estimate:
+    def fit(self, spec: HypothesisSpec, throw: PreparedThrow, start: dict[str, float] | None = None,
+            iterations: int = 20, rival: float = np.inf, prior_weight: float = 0.0) -> Estimate:
         """Fit one hypothesis from `start` (a warm start or its grid's best point; elsewhere held or nominal).
 
         With `rival` (the lowest objective another hypothesis reached), the fit stops early once it is
@@ -410,10 +413,7 @@ class ThrowEstimator:
         """
         free = list(spec.free)
         low, high = spec.bounds()
-        base = {**spec.fixed, **{n: v for n, v in (start or {}).items() if n in spec.free}}
-        theta = self.reduced.vector(base)
-        index = [PARAMETERS.index(n) for n in free]
-        theta[index] = np.clip(theta[index], low, high)
+        theta, index = self._start(spec, start)
         prior = Prior.of(spec, prior_weight)
 
         def at(values: np.ndarray) -> np.ndarray:
@@ -513,7 +513,7 @@ class ThrowEstimator:
         Every hypothesis of the throw shares one prior weight, so their objectives compare: the larger of
         the throw's noise (noise_weight) and `model_weight`, the residual variance over the effective number
         of samples that the model's own error leaves on a healthy throw."""
-        throw = m if isinstance(m, PreparedThrow) else self.prepare(m)
+        throw = self.prepare(m)
         weight = max(self.noise_weight(throw), model_weight)
         warm = warm or {}
         start = self._better_start(specs["nominal"], throw, weight, None, warm.get("nominal"))
@@ -540,21 +540,26 @@ class ThrowEstimator:
         if warm is None:
             return start
         prior = Prior.of(spec, weight)
-        free = list(spec.free)
-        low, high = spec.bounds()
 
         def objective(start: dict[str, float]) -> float:
-            theta = self.reduced.vector({**spec.fixed, **start})
-            z = np.clip(np.array([theta[PARAMETERS.index(n)] for n in free]), low, high)
-            theta[[PARAMETERS.index(n) for n in free]] = z
-            return self.cost(theta, throw) + float(np.sum(prior.residuals(z) ** 2))
+            theta, index = self._start(spec, start)
+            return self.cost(theta, throw) + float(np.sum(prior.residuals(theta[index]) ** 2))
 
         candidate = _free(spec, warm)
         return candidate if objective(candidate) < objective(_free(spec, start or {})) else start
 
+    def _start(self, spec: HypothesisSpec, start: dict[str, float] | None) -> tuple[np.ndarray, list[int]]:
+        """The parameter vector a fit of `spec` starts from (`start`'s values of its free parameters, within their
+        bounds; its held ones; nominal elsewhere) and where its free parameters sit in it."""
+        low, high = spec.bounds()
+        theta = self.reduced.vector({**spec.fixed, **_free(spec, start or {})})
+        index = [PARAMETERS.index(n) for n in spec.free]
+        theta[index] = np.clip(theta[index], low, high)
+        return theta, index
+
     def simulate(self, m: Measurement | PreparedThrow, values: dict[str, float]) -> dict[str, np.ndarray]:
         """The model's outputs at the samples' times under `values` (nominal elsewhere)."""
-        throw = m if isinstance(m, PreparedThrow) else self.prepare(m)
+        throw = self.prepare(m)
         return dict(zip(OUTPUTS, self._at_samples(self.all_outputs(self.reduced.vector(values), throw), throw)))
 
 
