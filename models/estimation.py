@@ -11,7 +11,8 @@ deciding first whether the fit has converged (one that has ends on that update).
 is multimodal (a bolt offset or an obstacle position moves the instant something happens, not
 only its size) the best of a grid of cheap residual evaluations (the model at its 20 ms training
 step, GRID_RATE_HZ) starts it, or the hypothesis's fit to the switch's previous throw where that
-fits better.
+fits better; on a throw where nothing has changed (SETTLED) a friction's fit starts from the previous
+throw's without its grid.
 
 The model runs on its own grid (`MODEL_RATE_HZ`, one integration step per model sample)
 in compiled chunks of `CHUNK_SAMPLES`, as many as the throw needs; the residual compares
@@ -29,6 +30,7 @@ the previous throw's fit, or the closed position.
 """
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -54,8 +56,18 @@ CHUNK_SAMPLES = 100
 GRID_RATE_HZ = 50.0
 # Grid points evaluated in one mapped call: every hypothesis's grid of a throw at once (37 points for the
 # switch's hypotheses, models/switch_diagnosis.py) and each fault mode's warm start (4). A point costs what a
-# rollout does whether it is used or padding, so the capacity is what a throw needs.
+# rollout does whether it is used or padding, so the capacity is what a throw needs; a settled throw (below)
+# needs the bolt's and the obstacle's grids and their warm starts (32).
 GRID_CAPACITY = 41
+SETTLED_CAPACITY = 32
+# A throw is settled when the switch's previous throw in its direction was healthy and this one's nominal fit
+# is within this share of that one's MSE: nothing has changed beyond what a healthy switch's MSE varies by from
+# one throw to the next (about sqrt(2 / N_eff), 6 % at a throw's 550 effective samples). On a settled throw a
+# fault mode whose error surface has one basin (a bearing's or the point machine's friction: HypothesisSpec
+# settled_grid False) starts from its warm values without its grid. A bolt and an obstacle keep theirs: their
+# offset and position move the instant something happens, and an obstacle fitted to a healthy throw sits at an
+# end of the travel with no friction, where its position has no slope, so from there it misses a new one.
+SETTLED = 0.1
 # Order-one scales of the parameters for the solver.
 SCALES = {"left_bolt_offset": 0.05, "right_bolt_offset": 0.05, "bearing_friction": 5e3,
           "obstacle_friction": 1e5, "obstacle_position": 0.05, "drive_friction_nm": 0.05,
@@ -152,6 +164,7 @@ class HypothesisSpec:
     grid: tuple[dict[str, float], ...] = ()  # starting points to pick the best of (free parameters only)
     prior: dict[str, tuple[float, float]] = field(default_factory=dict)
     log_prior: tuple[str, ...] = ()  # parameters whose prior is on log(value) (a positive, skewed spread)
+    settled_grid: bool = True  # its grid runs on a settled throw too (ThrowEstimator.fit_all), not only its warm start
 
     def within_priors(self, values: dict[str, float], sigmas: float) -> dict[str, float]:
         """`values` with each parameter that has a prior brought to within `sigmas` standard deviations of its
@@ -279,6 +292,8 @@ class PreparedThrow:
 class ThrowEstimator:
     """Fits hypotheses to throws of any length and rate; build once (compiled once), call per throw."""
 
+    CAPACITIES = (SETTLED_CAPACITY, GRID_CAPACITY)  # of the grid's mapped calls
+
     def __init__(self, reduced: ReducedSwitch, compiler: Compiler | None = None, directions: tuple[int, ...] = (4, 5, 7, 9)):
         """`reduced` must run at MODEL_RATE_HZ; `directions` are the numbers of free parameters the compiled
         Jacobians serve (a hypothesis uses the smallest that fits); `compiler` makes machine code."""
@@ -298,7 +313,7 @@ class ThrowEstimator:
         state, outputs = rolled(self.coarse.step, s0, grid_refs, theta, w)
         coarse = ca.Function("grid_chunk", [s0, grid_refs, theta, w], [state, outputs[_MEASURED_ROWS, :]])
         functions = [chunk, measured.map("model_chunk_grid", "serial", GRID_CAPACITY, [1, 3], []),
-                     coarse.map("coarse_chunk_grid", "serial", GRID_CAPACITY, [1, 3], [])]
+                     *[coarse.map(f"coarse_chunk_grid{c}", "serial", c, [1, 3], []) for c in self.CAPACITIES]]
         for k in self.directions:
             aug, seeds = ca.MX.sym("s_dot", n * (1 + k)), ca.MX.sym("seeds", p * k)
             step = reduced.sensitivity_step(k)
@@ -308,7 +323,8 @@ class ThrowEstimator:
                                          [state, outputs[_MEASURED_ROWS, :], outputs[rows, :]]))
         if compiler is not None:
             functions = compiler(functions)
-        self._chunk, self._batch, self._grid, *sensitivities = [InPlace(f) for f in functions]
+        self._chunk, self._batch, *rest = [InPlace(f) for f in functions]
+        self._grids, sensitivities = dict(zip(self.CAPACITIES, rest)), rest[len(self.CAPACITIES):]
         self._sensitivity = dict(zip(self.directions, sensitivities))
         self.weights = reduced.weights
 
@@ -359,20 +375,21 @@ class ThrowEstimator:
 
     def costs(self, thetas: np.ndarray, throw: PreparedThrow, coarse: bool = False) -> np.ndarray:
         """r'r of many parameter vectors (columns), GRID_CAPACITY to a mapped call; `coarse`: with the model at
-        GRID_RATE_HZ (what the grid ranks its points by)."""
-        evaluate, timeline, chunk = (self._grid, throw.grid, self.grid_chunk) if coarse else \
-            (self._batch, throw.model, CHUNK_SAMPLES)
+        GRID_RATE_HZ (what the grid ranks its points by), in the smallest mapped call that takes them."""
+        timeline, chunk = (throw.grid, self.grid_chunk) if coarse else (throw.model, CHUNK_SAMPLES)
         out = []
         for first in range(0, thetas.shape[1], GRID_CAPACITY):
             batch = thetas[:, first:first + GRID_CAPACITY]
             count = batch.shape[1]
-            batch = np.hstack([batch, np.repeat(batch[:, :1], GRID_CAPACITY - count, axis=1)])
-            states = np.repeat(throw.s0[:, None], GRID_CAPACITY, axis=1)
-            start = np.repeat(self._start_outputs(throw)[:, None, None], GRID_CAPACITY, axis=2)
+            capacity = min(c for c in self.CAPACITIES if c >= count) if coarse else GRID_CAPACITY
+            evaluate = self._grids[capacity] if coarse else self._batch
+            batch = np.hstack([batch, np.repeat(batch[:, :1], capacity - count, axis=1)])
+            states = np.repeat(throw.s0[:, None], capacity, axis=1)
+            start = np.repeat(self._start_outputs(throw)[:, None, None], capacity, axis=2)
             blocks = [start]
             for refs in timeline.refs:
                 states, y = evaluate(states, refs, batch, self.weights)
-                blocks.append(y.reshape(len(MEASURED), chunk, GRID_CAPACITY, order="F"))
+                blocks.append(y.reshape(len(MEASURED), chunk, capacity, order="F"))
             y = np.moveaxis(np.concatenate(blocks, axis=1)[throw.rows, :, :count], 2, 0)  # G x signals x samples
             differences = (timeline.at_samples(y) - throw.measured.T) * throw.inverse_scale[:, None]  # as _scaled
             with np.errstate(over="ignore", invalid="ignore"):
@@ -480,25 +497,30 @@ class ThrowEstimator:
         return float(np.mean(noise**2)) / throw.measured.size
 
     def grid_starts(self, specs: list[HypothesisSpec], base: dict[str, float], throw: PreparedThrow,
-                    warm: dict[str, dict[str, float]] | None = None) -> dict[str, dict]:
+                    warm: dict[str, dict[str, float]] | None = None, settled: bool = False) -> dict[str, dict]:
         """Each hypothesis's best grid point by residual alone (every grid point of the throw in one batch, the
         model at GRID_RATE_HZ), with `base` (the nominal fit) everywhere else; a hypothesis's `warm` values
-        (its fit to the switch's previous throw) compete as one more point."""
-        points = [(spec.mode, {**base, **spec.fixed, **point}) for spec in specs for point in spec.grid]
+        (its fit to the switch's previous throw) compete as one more point. On a `settled` throw a hypothesis
+        with warm values and no settled_grid has those alone."""
+        points = [(spec.mode, {**base, **spec.fixed, **point}) for spec in specs
+                  if spec.settled_grid or not settled or spec.mode not in (warm or {}) for point in spec.grid]
         points += [(spec.mode, {**base, **spec.fixed, **_free(spec, warm[spec.mode])})
                    for spec in specs if spec.mode in (warm or {})]
-        if not points:
-            return {}
-        costs = self.costs(np.column_stack([self.reduced.vector(p) for _, p in points]), throw, coarse=True)
-        best: dict[str, tuple[float, dict]] = {}
-        for (mode, point), cost in zip(points, costs):
-            if mode not in best or cost < best[mode][0]:
-                best[mode] = (cost, point)
-        return {mode: point for mode, (_, point) in best.items()}
+        count = Counter(mode for mode, _ in points)
+        best = {mode: point for mode, point in points if count[mode] == 1}  # a lone candidate needs no ranking
+        ranked = [(mode, point) for mode, point in points if count[mode] > 1]
+        if ranked:
+            costs = self.costs(np.column_stack([self.reduced.vector(p) for _, p in ranked]), throw, coarse=True)
+            lowest: dict[str, float] = {}
+            for (mode, point), cost in zip(ranked, costs):
+                if mode not in lowest or cost < lowest[mode]:
+                    lowest[mode], best[mode] = cost, point
+        return best
 
     def fit_all(self, m: Measurement | PreparedThrow, specs: dict[str, HypothesisSpec], model_weight: float = 0.0,
                 joint_when: Callable[[dict[str, Estimate]], bool] | None = None,
-                warm: dict[str, dict[str, float]] | None = None) -> dict[str, Estimate]:
+                warm: dict[str, dict[str, float]] | None = None, settled_mse: float | None = None
+                ) -> dict[str, Estimate]:
         """The nominal hypothesis first; each fault mode started from the nominal fit (its own parameters from
         their grid) and stopped once it cannot beat the best so far; joint last, from the best mode,
         and only when `joint_when(the estimates so far)` says it is worth it (a throw that shows no fault needs
@@ -508,7 +530,8 @@ class ThrowEstimator:
         switch changes little from one throw to the next, so a fit started there converges in fewer
         iterations; it is only a candidate: the nominal fit starts from it where its objective is lower than
         the nominal values', a fault mode where it beats the mode's grid points, and the joint fit where it
-        beats the best mode's fit.
+        beats the best mode's fit. `settled_mse` is the nominal fit's MSE on that throw when it was healthy:
+        a throw whose nominal fit is within SETTLED of it is settled (grid_starts).
 
         Every hypothesis of the throw shares one prior weight, so their objectives compare: the larger of
         the throw's noise (noise_weight) and `model_weight`, the residual variance over the effective number
@@ -523,7 +546,8 @@ class ThrowEstimator:
         # nominal's place the fault's parameter and the nuisance trade along a valley too flat to leave.
         nominal = specs["nominal"].within_priors(out["nominal"].values, START_SIGMAS)
         modes = [mode for mode in specs if mode not in ("nominal", "joint")]
-        starts = self.grid_starts([specs[mode] for mode in modes], nominal, throw, warm)
+        settled = settled_mse is not None and out["nominal"].mse <= (1.0 + SETTLED) * settled_mse
+        starts = self.grid_starts([specs[mode] for mode in modes], nominal, throw, warm, settled)
         for mode in modes:
             rival = min(estimate.objective for estimate in out.values())
             out[mode] = self.fit(specs[mode], throw, starts.get(mode, nominal), rival=rival, prior_weight=weight)

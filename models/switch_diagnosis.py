@@ -247,6 +247,16 @@ def start_angle(t_s: np.ndarray, signals: MotorSignals, direction: str, drive: D
     return float(np.mean(signals.angle_rad - travelled))
 
 
+def settled_mse(previous: ThrowVerdict | None, m: Measurement) -> float | None:
+    """The nominal fit's MSE on the switch's previous throw in this direction, when that throw was healthy and
+    measured the same signals (ThrowEstimator.fit_all: a throw whose nominal fit is within SETTLED of it is
+    settled)."""
+    if previous is None or previous.mode != "nominal":
+        return None
+    nominal = previous.estimates["nominal"]
+    return nominal.mse if nominal.residual.shape[1] == len(m.signals.names) else None
+
+
 def measurement(throw: ThrowInput, start_rail_m: float, drive: DriveParams = DriveParams()) -> Measurement:
     """What the estimator fits: the samples after the start, from the start's angle and the given rail position."""
     return Measurement(throw.direction, throw.reference, throw.t_s[1:], throw.signals[1:],
@@ -475,13 +485,13 @@ class SwitchDiagnoser:
             "missing_bearing": HypothesisSpec(
                 "missing_bearing", {**healthy, "bearing_friction": bearing_fault}, held,
                 tuple({"bearing_friction": b0 + f} for f in (500.0, 2e3, 5e3, 1e4)),
-                {**without, "motor.coulomb_friction_nm": prior["motor.coulomb_friction_nm"]}, logs),
+                {**without, "motor.coulomb_friction_nm": prior["motor.coulomb_friction_nm"]}, logs, settled_grid=False),
             "obstacle": HypothesisSpec("obstacle", {**obstacle, **healthy, **saturation}, held, OBSTACLE_GRID, prior,
                                        logs),
             "drive_friction": HypothesisSpec(
                 "drive_friction", {**{n: bounds[n] for n in FOLLOWED}, "bearing_friction": bounds["bearing_friction"],
                                    **machine}, {**held, "motor.coulomb_friction_nm": c0},
-                tuple({"drive_friction_nm": f} for f in (0.02, 0.08, 0.2)), bearing_prior, logs),
+                tuple({"drive_friction_nm": f} for f in (0.02, 0.08, 0.2)), bearing_prior, logs, settled_grid=False),
             "joint": HypothesisSpec(
                 "joint", {bolt_name: fault[bolt_name], **obstacle, **healthy, **saturation,
                           "bearing_friction": bearing_fault, **machine}, held,
@@ -534,7 +544,8 @@ class SwitchDiagnoser:
             prepared, self.specs(throw.direction), weight,
             joint_when=lambda fits: judge(throw.direction, fits, gains, self.evidence,
                                           self.negligible(fits))[0] != "nominal",
-            warm=None if previous is None else {mode: e.values for mode, e in previous.estimates.items()})
+            warm=None if previous is None else {mode: e.values for mode, e in previous.estimates.items()},
+            settled_mse=settled_mse(previous, m))
         mode, found = judge(throw.direction, estimates, gains, self.evidence, self.negligible(estimates))
         for name, seen in found.items():
             self.evidence[name] = [seen, *self.evidence.get(name, [])][:EVIDENCE_THROWS]

@@ -75,7 +75,7 @@ def test_estimator_built_from_the_cache_gives_the_uncompiled_residual_and_deriva
     expected = evaluations(uncompiled)
     for build in ("compiles", "loads"):
         cached = ThrowEstimator(reduced, MachineCode(tmp_path))
-        functions = 3 + len(cached.directions)
+        functions = 2 + len(cached.CAPACITIES) + len(cached.directions)
         assert cached._chunk.function.class_name() == "External" and len(list(tmp_path.glob("*.so"))) == functions, build
         for got, value in zip(evaluations(cached), expected):
             np.testing.assert_allclose(got, value, rtol=1e-10, atol=1e-12 * np.max(np.abs(value)))
