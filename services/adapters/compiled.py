@@ -52,7 +52,14 @@ class MachineCode:
         return compiled
 
 
-CACHE_FLAGS = ("-O2", "-shared", "-fPIC")  # flags of the cached shared libraries (part of their key)
+# How the C compiler optimises the models. Beyond -O2, a division by a value used more than once becomes one
+# reciprocal and products (-freciprocal-math: the reduced models' steps solve small linear systems and the
+# networks divide by square roots, so this is a tenth to a fifth of a throw's diagnosis), and a square root
+# need not set errno. Both move results by a rounding or so per operation, far inside the solvers' tolerances;
+# infinities and NaNs keep their meaning (no -ffinite-math-only), which the estimator relies on to reject a
+# diverged rollout.
+OPTIMISATION = ("-O2", "-fno-math-errno", "-freciprocal-math")
+CACHE_FLAGS = (*OPTIMISATION, "-shared", "-fPIC")  # flags of the cached shared libraries (part of their key)
 
 
 def jit_compiled_all(functions: list[ca.Function], cache_dir: Path | None = None,
@@ -81,7 +88,7 @@ def _process_jit(function: ca.Function) -> tuple[ca.Function, bool]:
         compiled = ca.Function(function.name() + "_jit", symbols, function.call(symbols),
                                function.name_in(), function.name_out(),
                                {"jit": True, "compiler": "shell", "jit_name": "railswitch_jit",
-                                "jit_options": {"flags": ["-O2"], "verbose": False,
+                                "jit_options": {"flags": list(OPTIMISATION), "verbose": False,
                                                 "directory": scratch + os.sep}})
         compiled(*[np.zeros(function.size_in(i)) for i in range(function.n_in())])
         return compiled, True
