@@ -11,8 +11,8 @@ deciding first whether the fit has converged (one that has ends on that update).
 is multimodal (a bolt offset or an obstacle position moves the instant something happens, not
 only its size) the best of a grid of cheap residual evaluations (the model at its 20 ms training
 step, GRID_RATE_HZ) starts it, or the hypothesis's fit to the switch's previous throw where that
-fits better; on a throw where nothing has changed (SETTLED) a friction's fit starts from the previous
-throw's without its grid.
+fits better; on a throw where nothing has changed (SETTLED) a fault can only be a small one, and the
+grid shrinks to what a small fault can be.
 
 The model runs on its own grid (`MODEL_RATE_HZ`, one integration step per model sample)
 in compiled chunks of `CHUNK_SAMPLES`, as many as the throw needs; the residual compares
@@ -57,16 +57,17 @@ GRID_RATE_HZ = 50.0
 # Grid points evaluated in one mapped call: every hypothesis's grid of a throw at once (37 points for the
 # switch's hypotheses, models/switch_diagnosis.py) and each fault mode's warm start (4). A point costs what a
 # rollout does whether it is used or padding, so the capacity is what a throw needs; a settled throw (below)
-# needs the bolt's and the obstacle's grids and their warm starts (32).
+# needs the bolt's grid, the obstacle's at its lesser friction and their warm starts (23).
 GRID_CAPACITY = 41
-SETTLED_CAPACITY = 32
+SETTLED_CAPACITY = 23
 # A throw is settled when the switch's previous throw in its direction was healthy and this one's nominal fit
 # is within this share of that one's MSE: nothing has changed beyond what a healthy switch's MSE varies by from
-# one throw to the next (about sqrt(2 / N_eff), 6 % at a throw's 550 effective samples). On a settled throw a
-# fault mode whose error surface has one basin (a bearing's or the point machine's friction: HypothesisSpec
-# settled_grid False) starts from its warm values without its grid. A bolt and an obstacle keep theirs: their
-# offset and position move the instant something happens, and an obstacle fitted to a healthy throw sits at an
-# end of the travel with no friction, where its position has no slope, so from there it misses a new one.
+# one throw to the next (about sqrt(2 / N_eff), 6 % at a throw's 550 effective samples). A fault that has
+# appeared on a settled throw is a small one, so a settled throw ranks each hypothesis's `settled_grid`
+# (HypothesisSpec) and its warm start: none for a bearing's or the point machine's friction (their error
+# surface has one basin, which the warm start is in), a small obstacle's positions for the obstacle (one
+# fitted to a healthy throw sits at an end of the travel with no friction, where its position has no slope,
+# so from there it misses a new one), the whole grid for a bolt (its offset moves the instant the blades do).
 SETTLED = 0.1
 # Order-one scales of the parameters for the solver.
 SCALES = {"left_bolt_offset": 0.05, "right_bolt_offset": 0.05, "bearing_friction": 5e3,
@@ -164,7 +165,8 @@ class HypothesisSpec:
     grid: tuple[dict[str, float], ...] = ()  # starting points to pick the best of (free parameters only)
     prior: dict[str, tuple[float, float]] = field(default_factory=dict)
     log_prior: tuple[str, ...] = ()  # parameters whose prior is on log(value) (a positive, skewed spread)
-    settled_grid: bool = True  # its grid runs on a settled throw too (ThrowEstimator.fit_all), not only its warm start
+    # the grid a settled throw ranks beside the warm start (ThrowEstimator.fit_all; SETTLED); None: `grid`
+    settled_grid: tuple[dict[str, float], ...] | None = None
 
     def within_priors(self, values: dict[str, float], sigmas: float) -> dict[str, float]:
         """`values` with each parameter that has a prior brought to within `sigmas` standard deviations of its
@@ -501,9 +503,12 @@ class ThrowEstimator:
         """Each hypothesis's best grid point by residual alone (every grid point of the throw in one batch, the
         model at GRID_RATE_HZ), with `base` (the nominal fit) everywhere else; a hypothesis's `warm` values
         (its fit to the switch's previous throw) compete as one more point. On a `settled` throw a hypothesis
-        with warm values and no settled_grid has those alone."""
-        points = [(spec.mode, {**base, **spec.fixed, **point}) for spec in specs
-                  if spec.settled_grid or not settled or spec.mode not in (warm or {}) for point in spec.grid]
+        with warm values ranks its settled_grid instead of its grid."""
+        def grid(spec: HypothesisSpec) -> tuple[dict[str, float], ...]:
+            use_settled = settled and spec.settled_grid is not None and spec.mode in (warm or {})
+            return spec.settled_grid if use_settled else spec.grid
+
+        points = [(spec.mode, {**base, **spec.fixed, **point}) for spec in specs for point in grid(spec)]
         points += [(spec.mode, {**base, **spec.fixed, **_free(spec, warm[spec.mode])})
                    for spec in specs if spec.mode in (warm or {})]
         count = Counter(mode for mode, _ in points)

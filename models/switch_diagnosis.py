@@ -93,6 +93,8 @@ BOLT_TOLERANCE = 0.005
 BOLT_GRID = tuple(np.round(np.arange(-0.02, 0.2001, 0.02), 4))
 OBSTACLE_GRID = tuple({"obstacle_position": round(float(p), 3), "obstacle_friction": f}
                       for p in np.arange(1.02, 1.1801, 0.02) for f in (3e4, 1.5e5))
+# A settled throw's (models/estimation.py SETTLED): an obstacle that appears without changing the throw is a small one.
+SMALL_OBSTACLE_GRID = tuple(point for point in OBSTACLE_GRID if point["obstacle_friction"] == 3e4)
 
 
 @dataclass(frozen=True)
@@ -485,13 +487,13 @@ class SwitchDiagnoser:
             "missing_bearing": HypothesisSpec(
                 "missing_bearing", {**healthy, "bearing_friction": bearing_fault}, held,
                 tuple({"bearing_friction": b0 + f} for f in (500.0, 2e3, 5e3, 1e4)),
-                {**without, "motor.coulomb_friction_nm": prior["motor.coulomb_friction_nm"]}, logs, settled_grid=False),
+                {**without, "motor.coulomb_friction_nm": prior["motor.coulomb_friction_nm"]}, logs, settled_grid=()),
             "obstacle": HypothesisSpec("obstacle", {**obstacle, **healthy, **saturation}, held, OBSTACLE_GRID, prior,
-                                       logs),
+                                       logs, settled_grid=SMALL_OBSTACLE_GRID),
             "drive_friction": HypothesisSpec(
                 "drive_friction", {**{n: bounds[n] for n in FOLLOWED}, "bearing_friction": bounds["bearing_friction"],
                                    **machine}, {**held, "motor.coulomb_friction_nm": c0},
-                tuple({"drive_friction_nm": f} for f in (0.02, 0.08, 0.2)), bearing_prior, logs, settled_grid=False),
+                tuple({"drive_friction_nm": f} for f in (0.02, 0.08, 0.2)), bearing_prior, logs, settled_grid=()),
             "joint": HypothesisSpec(
                 "joint", {bolt_name: fault[bolt_name], **obstacle, **healthy, **saturation,
                           "bearing_friction": bearing_fault, **machine}, held,
