@@ -504,13 +504,15 @@ class ThrowEstimator:
         model at GRID_RATE_HZ), with `base` (the nominal fit) everywhere else; a hypothesis's `warm` values
         (its fit to the switch's previous throw) compete as one more point. On a `settled` throw a hypothesis
         with warm values ranks its settled_grid instead of its grid."""
+        warm = warm or {}
+
         def grid(spec: HypothesisSpec) -> tuple[dict[str, float], ...]:
-            use_settled = settled and spec.settled_grid is not None and spec.mode in (warm or {})
+            use_settled = settled and spec.settled_grid is not None and spec.mode in warm
             return spec.settled_grid if use_settled else spec.grid
 
         points = [(spec.mode, {**base, **spec.fixed, **point}) for spec in specs for point in grid(spec)]
         points += [(spec.mode, {**base, **spec.fixed, **_free(spec, warm[spec.mode])})
-                   for spec in specs if spec.mode in (warm or {})]
+                   for spec in specs if spec.mode in warm]
         count = Counter(mode for mode, _ in points)
         best = {mode: point for mode, point in points if count[mode] == 1}  # a lone candidate needs no ranking
         ranked = [(mode, point) for mode, point in points if count[mode] > 1]

@@ -13,6 +13,7 @@ from railswitch.models.reference import throw_reference
 from railswitch.models.signals import MotorSignals
 from railswitch.models.switch import SwitchSimulation
 from railswitch.schemas import Diagnosis, MotorSample, ThrowEvent, decode
+from railswitch.schemas.faults import FAULT_PARAMETERS
 from railswitch.services.adapters.recordings import load_recording
 from railswitch.services.core.fleet_diagnoser import Diagnoser, diagnose_messages, diagnose_simulation
 from railswitch.services.core.throw_cutter import cut_throws
@@ -147,8 +148,7 @@ def test_a_new_fault_on_a_throw_that_counts_as_settled_is_fitted_as_the_grid_fit
     m = _twin_throw(estimator, direction, truth)
     gridded = estimator.fit_all(m, specs, warm=warm)
     settled = estimator.fit_all(m, specs, warm=warm, settled_mse=np.inf)
-    mode = {"obstacle_friction": "obstacle", "bearing_friction": "missing_bearing",
-            "drive_friction_nm": "drive_friction"}[next(iter(truth))]
+    mode = FAULT_PARAMETERS[next(iter(truth))].mode
     for name in truth:
         assert settled[mode].params[name] == pytest.approx(gridded[mode].params[name], rel=1e-2), settled[mode]
     assert settled[mode].mse <= 1.01 * gridded[mode].mse
