@@ -57,24 +57,18 @@ def ros2(rhs: Callable, state, h: float, substeps: int, w_rhs: Callable | None =
     whose Jacobian at `point` serves as W (for instance one with learned terms
     replaced by their dissipative, frozen-coefficient linearisation, so that
     I - gamma*h*W can never become singular).
+
+    Each stage calls `rhs` at its own point, so whatever `rhs` builds there belongs to that point (the
+    reduced switch's sensitivities stand its learned rail in by one such piece per point).
     """
-    x = ca.SX.sym("x", state.shape[0])
-    fraction = ca.SX.sym("fraction")
-    f_expr = rhs(x, fraction)
-    jac_expr = ca.jacobian(f_expr, x)
-    point = ca.SX.sym("point", state.shape[0])
-    if w_rhs is not None:
-        jac_expr = ca.substitute(ca.jacobian(w_rhs(x, fraction, point), x), point, x)
-
-    def at(expression, point, t):  # an expression of (x, fraction) at another point (other symbols stay free)
-        return ca.substitute(expression, ca.vertcat(x, fraction), ca.vertcat(point, ca.SX(t)))
-
     for k in range(substeps):
         t0, t1 = k / substeps, (k + 1) / substeps
-        solve = lu_solver(ca.SX.eye(state.shape[0]) - ROS2_GAMMA * h * at(jac_expr, state, t0))
-        f = lambda point, t: at(f_expr, point, t)  # noqa: E731
-        k1 = solve(f(state, t0))
-        k2 = solve(f(state + h * k1, t1) - 2.0 * k1)
+        x = ca.SX.sym("x", state.shape[0])
+        stand_in = rhs(x, t0) if w_rhs is None else w_rhs(x, t0, state)
+        jacobian = ca.substitute(ca.jacobian(stand_in, x), x, state)
+        solve = lu_solver(ca.SX.eye(state.shape[0]) - ROS2_GAMMA * h * jacobian)
+        k1 = solve(rhs(state, t0))
+        k2 = solve(rhs(state + h * k1, t1) - 2.0 * k1)
         state = state + h * (1.5 * k1 + 0.5 * k2)
     return state
 

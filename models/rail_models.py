@@ -91,13 +91,20 @@ class Representation:
         """Force at the port that produces acceleration a at state (x, v)."""
         raise NotImplementedError
 
-    def acceleration(self, x, v, force, w):
-        """Acceleration under port force `force`."""
+    def features(self, x, v, w):
+        """The learned quantities at (x, v) that `acceleration` and `linearisation` are made of (a column of a
+        few, whatever the size of the networks behind them), or None where there is nothing to learn from but
+        the weights themselves (poly). Derivatives with respect to anything but the weights pass through
+        them by their Jacobian with respect to (x, v) alone (ReducedSwitch.sensitivity_step)."""
+        return None
+
+    def acceleration(self, x, v, force, w, features=None):
+        """Acceleration under port force `force`; `features`: self.features(x, v, w), where already made."""
         raise NotImplementedError
 
-    def linearisation(self, x, v, w):
+    def linearisation(self, x, v, w, features=None):
         """Mass, stiffness and damping of a dissipative linear stand-in at (x, v), all non-negative:
-        used only as the W matrix of the integrator."""
+        used only as the W matrix of the integrator. `features` as for `acceleration`."""
         raise NotImplementedError
 
     # -- training parametrisation -------------------------------------------------------------
@@ -133,7 +140,7 @@ class AcausalRepresentation(Representation):
         p = self.unflatten(w)
         return p["m"] * a + self.spring(x, p) + self.damper(x, v, p)
 
-    def acceleration(self, x, v, force, w):
+    def acceleration(self, x, v, force, w, features=None):
         p = self.unflatten(w)
         return (force - self.spring(x, p) - self.damper(x, v, p)) / p["m"]
 
@@ -171,7 +178,7 @@ class PolyRail(AcausalRepresentation):
         delta = x - p["xfix"]
         return 0.5 * p["m"] * v**2 + p["c0"] * delta**2 / 2 + p["c1"] * delta**4 / 4 + p["c2"] * delta**6 / 6
 
-    def linearisation(self, x, v, w):
+    def linearisation(self, x, v, w, features=None):
         """Tangent stiffness and damping: non-negative with non-negative coefficients."""
         p = self.unflatten(w)
         delta = x - p["xfix"]
@@ -212,27 +219,36 @@ class NNRail(AcausalRepresentation):
         f"{NN_HIDDEN} units",
         "s(z) = z / sqrt(1 + z^2)")
 
-    def stiffness(self, x, p):
-        """c(x)^2."""
-        c = GAIN_SCALE * _mlp((x - p["xfix"]) / POSITION_SCALE_M, p["cw0"], p["cb0"], p["cw1"], p["cb1"])
-        return c**2
+    def c(self, x, p):
+        """The spring network, c(x)."""
+        return GAIN_SCALE * _mlp((x - p["xfix"]) / POSITION_SCALE_M, p["cw0"], p["cb0"], p["cw1"], p["cb1"])
 
-    def damping(self, x, v, p):
-        """d(x, v)^2."""
-        d = GAIN_SCALE * _mlp(ca.vertcat((x - p["xfix"]) / POSITION_SCALE_M, v / VELOCITY_SCALE_M_S),
-                              p["dw0"], p["db0"], p["dw1"], p["db1"])
-        return d**2
+    def d(self, x, v, p):
+        """The damper network, d(x, v)."""
+        return GAIN_SCALE * _mlp(ca.vertcat((x - p["xfix"]) / POSITION_SCALE_M, v / VELOCITY_SCALE_M_S),
+                                 p["dw0"], p["db0"], p["dw1"], p["db1"])
 
     def spring(self, x, p):
-        return self.stiffness(x, p) * (x - p["xfix"])
+        return self.c(x, p) ** 2 * (x - p["xfix"])
 
     def damper(self, x, v, p):
-        return self.damping(x, v, p) * v
+        return self.d(x, v, p) ** 2 * v
 
-    def linearisation(self, x, v, w):
+    def features(self, x, v, w):
+        """c(x) and d(x, v)."""
+        p = self.unflatten(w)
+        return ca.vertcat(self.c(x, p), self.d(x, v, p))
+
+    def acceleration(self, x, v, force, w, features=None):
+        p = self.unflatten(w)
+        c, d = ca.vertsplit(self.features(x, v, w) if features is None else features)
+        return (force - c**2 * (x - p["xfix"]) - d**2 * v) / p["m"]
+
+    def linearisation(self, x, v, w, features=None):
         """Secant stiffness and damping, c(x)^2 and d(x, v)^2."""
         p = self.unflatten(w)
-        return p["m"], self.stiffness(x, p), self.damping(x, v, p)
+        c, d = ca.vertsplit(self.features(x, v, w) if features is None else features)
+        return p["m"], c**2, d**2
 
     def weights_from_z(self, z):
         mass, xfix = MIN_MASS_KG + 100.0 * z[0] ** 2, MID_TRAVEL_M + 0.1 * z[1]
@@ -276,19 +292,23 @@ class CausalRail(Representation):
     def force(self, x, v, a, w):
         return CAUSAL_MASS_KG * a + self.network(x, v, a, w)[0]
 
+    def features(self, x, v, w):
+        """g and its slopes dg/dx, dg/dv, dg/da at a = 0."""
+        return ca.vertcat(*self.network(x, v, 0.0, w))
+
     @staticmethod
     def floored_inertia(slope):
         """dF/da, kept above half the toe's inertia (smoothly), so a is always solvable."""
         return softplus(slope - CAUSAL_MASS_KG / 2, CAUSAL_MASS_KG / 10) + CAUSAL_MASS_KG / 2
 
-    def acceleration(self, x, v, force, w):
+    def acceleration(self, x, v, force, w, features=None):
         """One Newton step from a = 0 (the learned dependence on a is weak)."""
-        g, _, _, dg_da = self.network(x, v, 0.0, w)
+        g, _, _, dg_da = ca.vertsplit(self.features(x, v, w) if features is None else features)
         return -(g - force) / self.floored_inertia(CAUSAL_MASS_KG + dg_da)
 
-    def linearisation(self, x, v, w):
+    def linearisation(self, x, v, w, features=None):
         """The map's slopes at a = 0, stiffness and damping clipped at zero."""
-        _, dg_dx, dg_dv, dg_da = self.network(x, v, 0.0, w)
+        _, dg_dx, dg_dv, dg_da = ca.vertsplit(self.features(x, v, w) if features is None else features)
         return self.floored_inertia(CAUSAL_MASS_KG + dg_da), ca.fmax(dg_dx, 0.0), ca.fmax(dg_dv, 0.0)
 
     def initial_weights(self, seed: int) -> np.ndarray:

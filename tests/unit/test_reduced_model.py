@@ -89,7 +89,8 @@ def test_outputs_have_finite_nonzero_derivatives_where_each_fault_acts(name):
 
 @pytest.mark.parametrize("name", MODELS)
 def test_sensitivity_rollout_gives_the_derivatives_of_the_rollout(name):
-    """The estimator's Jacobians (sensitivities carried through each step) equal CasADi's AD of the rollout."""
+    """The estimator's Jacobians (sensitivities carried through each step, the learned rails through their
+    features' stand-ins) equal CasADi's AD of the rollout."""
     from railswitch.models.reference import throw_reference
 
     representation, weights = model_store.load(name).representation, model_store.load(name).weights
