@@ -125,7 +125,8 @@ def main() -> None:
             weights, train_seconds = stored.weights, stored.training["seconds"]
         else:
             os.sched_setaffinity(0, cores)  # training shares its data among the machine's cores, as `railswitch train`
-            weights = train(representation, plant, threads=len(cores), compiler=MachineCode()).weights
+            weights = train(representation, compiled_plant(exact=True), threads=len(cores),
+                            compiler=MachineCode(exact=True)).weights
             pin_to_one_core()  # the rollouts are timed on one core
             train_seconds = time.perf_counter() - start
         compiler = MachineCode()
