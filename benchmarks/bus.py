@@ -16,12 +16,15 @@
 into two elastic diagnosers (no recorder), every switch throwing once per 15 simulated minutes (a
 real switch throws about 100 times a day):
 
-1. Capacity: `--burst-throws` throws of each of `--burst` switches at once (a switch's throws in order,
-   so from its third on the diagnoser knows its previous throw in the same direction, as it does for
-   nearly every throw in service; `--burst-throws 1` measures first throws only); the throws per
-   second the two diagnosers clear, and per CPU second they spend (decoding everything, holding
-   others' throws, diagnosing their own): `switches_per_core`, the fleet one core serves at 100
-   throws a day.
+1. Capacity: each of `--burst` switches at once throws `--commissioning` throws and then
+   `--burst-throws` more (a switch's throws in order). The first are its commissioning (a new switch's
+   baseline: COMMISSIONING_THROWS each way), the rest are throws in service, where the diagnoser knows
+   the switch's baseline and its previous throw in the same direction, as it does for every throw of
+   a switch in service but its first. For each phase: the throws per second the two diagnosers clear,
+   and per CPU second they spend (decoding everything, holding others' throws, diagnosing their own).
+   `switches_per_core`, the fleet one core serves at 100 throws a day, is the service phase's; the
+   commissioning phase's is reported beside it (`--commissioning 0` times a new fleet's first throws
+   alone, as the capacity run did before it had phases).
 2. Paced: `--fleet` switches sped up to `--load` times the measured capacity, for `--paced-s`
    seconds: `lost` (throws without a diagnosis) and the latency from a record's arrival to its
    diagnosis's. With `--elastic` a third diagnoser joins mid-run and one of the first two is then
@@ -54,6 +57,7 @@ from railswitch.services.adapters.processes import (
     wait_for,
     wait_ready,
 )
+from railswitch.models.switch_diagnosis import COMMISSIONING_THROWS
 from railswitch.services.commands.simulate import simulate_to_mcap
 
 RATE_HZ = 50.0
@@ -160,13 +164,21 @@ def main() -> None:
     p.add_argument("--records", action="store_true", help="throws as records into elastic diagnosers (see above)")
     p.add_argument("--elastic", action="store_true", help="with --records: a diagnoser joins, then one is killed")
     p.add_argument("--burst", type=int, default=100, help="with --records: switches of the capacity run")
-    p.add_argument("--burst-throws", type=int, default=4, help="with --records: throws per switch of the capacity run")
+    p.add_argument("--commissioning", type=int, default=2 * COMMISSIONING_THROWS,
+                   help="with --records: each capacity switch's commissioning throws, timed apart")
+    p.add_argument("--burst-throws", type=int, default=4,
+                   help="with --records: throws per switch in service in the capacity run")
     p.add_argument("--fleet", type=int, default=2000, help="with --records: switches of the paced run")
     p.add_argument("--load", type=float, default=0.4, help="with --records: paced load, fraction of capacity")
     p.add_argument("--paced-s", type=float, default=None, help="with --records: paced run (default 40 s, 60 elastic)")
     args = p.parse_args()
-    if args.elastic and not args.records:
-        p.error("--elastic needs --records")
+    for wrong, message in ((args.elastic and not args.records, "--elastic needs --records"),
+                           (args.commissioning < 0, f"--commissioning {args.commissioning} is outside the accepted range"
+                                                    " 0 or more throws per switch"),
+                           (args.burst_throws < 1, f"--burst-throws {args.burst_throws} is outside the accepted range"
+                                                   " 1 or more throws per switch")):
+        if wrong:
+            p.exit(2, f"{p.prog}: error: {message}\n")  # one line, as the services' commands give
     if args.records:
         emit(records_benchmark(args), args.json)
         return
@@ -266,6 +278,11 @@ class RecordObserver:
             self.diagnoses.clear()
             self.duplicates = 0
 
+    def diagnosed_before(self, index: int) -> int:
+        """Throws diagnosed whose index in their switch's life is below `index`."""
+        with self.lock:
+            return sum(throw < index for _, throw in self.diagnoses)
+
     def undiagnosed(self) -> int:
         with self.lock:
             return len(set(self.records) - set(self.diagnoses))
@@ -304,23 +321,35 @@ def record_fleet(processes: ServiceProcesses, endpoint: str, library: Path, name
 
 
 def capacity_run(processes, observer: RecordObserver, endpoint: str, library: Path, diagnosers, burst: int,
-                 throws: int) -> dict:
-    """`throws` throws of each of `burst` switches at once: how fast, and at what CPU cost, the diagnosers clear
-    them."""
+                 commissioning: int, throws: int) -> dict:
+    """`commissioning` and then `throws` throws of each of `burst` switches at once: how fast, and at what CPU
+    cost, the diagnosers clear each phase. A switch's throws arrive 0.09 s apart and every switch's at once, so
+    the diagnosers' backlog runs in throw order: the commissioning phase ends when its last throw is diagnosed
+    (the diagnosers may have begun one throw of service each by then, under 1 % of it)."""
     observer.reset()
-    cpu0 = sum(cpu_s(d.pid) for d in diagnosers)
-    start = time.monotonic()
-    fleet = record_fleet(processes, endpoint, library, "burst", burst, 10_000.0, throws)  # 0.09 s between a switch's
+    phases: list[dict] = []
+    cpu, start = sum(cpu_s(d.pid) for d in diagnosers), time.monotonic()
+
+    def phase(name: str, count: int) -> None:
+        nonlocal cpu, start
+        now_cpu, now = sum(cpu_s(d.pid) for d in diagnosers), time.monotonic()
+        per_cpu_s = count / (now_cpu - cpu)
+        phases.append({"phase": name, "throws": count, "throws_per_switch": count // burst,
+                       "throws_per_s_cleared": round(count / (now - start), 2), "diagnoser_cpu_s": round(now_cpu - cpu, 1),
+                       "throws_per_cpu_s": round(per_cpu_s, 2), "switches_per_core": int(per_cpu_s * 86_400 / THROWS_PER_DAY)})
+        cpu, start = now_cpu, now
+
+    fleet = record_fleet(processes, endpoint, library, "burst", burst, 10_000.0, commissioning + throws)
+    if commissioning:
+        wait_for(lambda: observer.diagnosed_before(commissioning) >= burst * commissioning, 900,
+                 "the commissioning throws' diagnoses", poll_s=0.01)
+        phase("commissioning", burst * commissioning)
     fleet.wait(300)
-    total = burst * throws
-    wait_for(lambda: len(observer.records) >= total and observer.undiagnosed() == 0, 900, "the burst's diagnoses")
-    cpu = sum(cpu_s(d.pid) for d in diagnosers) - cpu0
-    cleared_s = max(observer.diagnoses.values()) - start
-    per_cpu_s = total / cpu
-    return {"throws": total, "switches": burst, "throws_per_switch": throws,
-            "throws_per_s_cleared": round(total / cleared_s, 2), "diagnoser_cpu_s": round(cpu, 1),
-            "throws_per_cpu_s": round(per_cpu_s, 2),
-            "switches_per_core": int(per_cpu_s * 86_400 / THROWS_PER_DAY)}
+    total = burst * (commissioning + throws)
+    wait_for(lambda: len(observer.records) >= total and observer.undiagnosed() == 0, 900, "the burst's diagnoses",
+             poll_s=0.01)
+    phase("service", burst * throws)
+    return {"switches": burst, **phases[-1], "phases": phases}
 
 
 def paced_run(processes, session, observer: RecordObserver, endpoint: str, library: Path, work: Path, diagnosers,
@@ -395,7 +424,8 @@ def records_benchmark(args) -> dict:
         diagnosers = [processes.start("diagnoser", "--connect", endpoint, "--state", str(work / f"state-{k}"),
                                       "--status-interval", STATUS_S) for k in (1, 2)]
         wait_ready(session, processes, diagnoser=2)
-        capacity = capacity_run(processes, observer, endpoint, library, diagnosers, args.burst, args.burst_throws)
+        capacity = capacity_run(processes, observer, endpoint, library, diagnosers, args.burst, args.commissioning,
+                                args.burst_throws)
         rate = args.load * capacity["throws_per_s_cleared"]
         paced = paced_run(processes, session, observer, endpoint, library, work, diagnosers, args.fleet, rate,
                           paced_s, args.elastic)

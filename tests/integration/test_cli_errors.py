@@ -35,3 +35,15 @@ def test_bad_switch_parameters_give_one_line_and_exit_2(args, words, tmp_path):
                             timeout=60)
     assert result.returncode == 2, result.stderr
     assert words in result.stderr and len(result.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--records", "--commissioning", "-1"], "--commissioning -1 is outside the accepted range"),
+    (["--records", "--burst-throws", "0"], "--burst-throws 0 is outside the accepted range"),
+    (["--elastic"], "--elastic needs --records"),
+])
+def test_bad_bus_benchmark_options_give_one_line_and_exit_2(args, words):
+    result = subprocess.run([sys.executable, "-m", "benchmarks.bus", *args], cwd=ROOT, capture_output=True, text=True,
+                            timeout=60)
+    assert result.returncode == 2, result.stderr
+    assert words in result.stderr and len(result.stderr.strip().splitlines()) == 1, result.stderr
