@@ -64,10 +64,13 @@ def test_estimator_built_from_the_cache_gives_the_uncompiled_residual_and_deriva
     free = [[0], [0, 2, 5, 6, 7], [0, 1, 2, 3, 4, 5, 6], list(range(9))]
 
     def evaluations(estimator: ThrowEstimator) -> list:
-        """Every compiled Function: the chunk (residual), the batched chunks at both rates, each sensitivity chunk."""
+        """Every compiled Function: the chunk (residual), the batched chunks of each capacity at both rates, each
+        sensitivity chunk."""
         throw = estimator.prepare(m)
-        out = [estimator.residuals(theta, throw), estimator.costs(np.tile(theta[:, None], 3), throw),
-               estimator.costs(np.tile(theta[:, None], 3), throw, coarse=True)]
+        out = [estimator.residuals(theta, throw)]
+        for count in (3, 30):  # the smaller and the larger mapped call at each rate
+            out += [estimator.costs(np.tile(theta[:, None], count), throw),
+                    estimator.costs(np.tile(theta[:, None], count), throw, coarse=True)]
         for index in free:
             out += estimator.linearise(theta, throw, index)
         return [np.asarray(value) for value in out]
@@ -75,7 +78,7 @@ def test_estimator_built_from_the_cache_gives_the_uncompiled_residual_and_deriva
     expected = evaluations(uncompiled)
     for build in ("compiles", "loads"):
         cached = ThrowEstimator(reduced, MachineCode(tmp_path))
-        functions = 2 + len(cached.CAPACITIES) + len(cached.directions)
+        functions = 1 + len(cached.MODEL_CAPACITIES) + len(cached.CAPACITIES) + len(cached.directions)
         assert cached._chunk.function.class_name() == "External" and len(list(tmp_path.glob("*.so"))) == functions, build
         for got, value in zip(evaluations(cached), expected):
             np.testing.assert_allclose(got, value, rtol=1e-10, atol=1e-12 * np.max(np.abs(value)))

@@ -77,6 +77,27 @@ def test_single_fault_is_identified_within_a_tenth_of_a_percent_on_reduced_model
     assert estimates[mode].mse < 1e-3 * estimates["nominal"].mse
 
 
+@pytest.fixture(scope="module")
+def causal_diagnoser() -> Diagnoser:
+    d = Diagnoser("causal")
+    d.warm_up()
+    return d
+
+
+@pytest.mark.parametrize("direction, truth", [("left_to_right", {"left_bolt_offset": 0.1325}),
+                                              ("right_to_left", {"right_bolt_offset": 0.1125})])
+def test_a_bolt_on_a_sawtooth_error_surface_is_found_by_the_scan_around_its_fit(causal_diagnoser, direction, truth):
+    """The causal rail's bolt error surface is a sawtooth whose teeth stop the solver at an edge (on these twin
+    throws 3.4 and 7.8 mm from the truth without the scan); the scan around the fit (HypothesisSpec.scanned)
+    finds the tooth of the truth."""
+    estimator = causal_diagnoser.estimator
+    (name, value), = truth.items()
+    mode = FAULT_PARAMETERS[name].mode
+    estimates = estimator.fit_all(_twin_throw(estimator, direction, truth), causal_diagnoser.switch("twin").specs(direction))
+    assert estimates[mode].params[name] == pytest.approx(value, abs=1e-3), estimates[mode]
+    assert estimates[mode].mse < 1e-2 * estimates["nominal"].mse
+
+
 def test_fits_started_from_the_previous_throws_need_fewer_iterations_and_a_start_that_fits_worse_is_not_taken(
         diagnoser):
     """The switch's previous fits (`warm`) start this throw's where they fit better than the cold starts: the
