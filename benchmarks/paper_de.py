@@ -48,7 +48,7 @@ class PaperEstimator(ThrowEstimator):
             thetas = np.repeat(theta[:, None], z.shape[1], axis=1)
             thetas[index, :] = z
             self.evaluations += z.shape[1]
-            return self.costs(thetas, throw) + np.sum(prior.residuals(z) ** 2, axis=0)
+            return self.objectives(thetas, throw, prior, index)
 
         result = differential_evolution(objective, list(zip(low, high)), seed=self.seed, **SETTINGS)
         # The Laplace standard deviations at its optimum, as ours are computed (no step taken).

@@ -428,6 +428,11 @@ class ThrowEstimator:
         values = np.concatenate(out)
         return np.where(np.isfinite(values), values, np.inf)
 
+    def objectives(self, thetas: np.ndarray, throw: PreparedThrow, prior: Prior, index: list[int]) -> np.ndarray:
+        """What a fit minimises (MSE plus the priors' charge) at many parameter vectors (columns); `index`: where
+        the free parameters `prior` charges sit among PARAMETERS."""
+        return self.costs(thetas, throw) + np.sum(prior.residuals(thetas[index]) ** 2, axis=0)
+
     def linearise(self, theta: np.ndarray, throw: PreparedThrow, index: list[int]) -> tuple[np.ndarray, np.ndarray]:
         """Residual and its Jacobian columns for the parameters at `index`."""
         k = min((d for d in self.directions if d >= len(index)), default=None)
@@ -586,12 +591,10 @@ class ThrowEstimator:
         for mode in modes:
             rival = min(estimate.objective for estimate in out.values())
             out[mode] = self.fit(specs[mode], throw, starts.get(mode, nominal), rival=rival, prior_weight=weight)
-        if modes:
-            best = min(modes, key=lambda mode: out[mode].objective)
-            if specs[best].scanned and out[best].objective < SCAN_WHEN * out["nominal"].objective:
-                out[best] = self.scanned(specs[best], throw, out[best], weight)
+        best = min(modes, key=lambda mode: out[mode].objective) if modes else "nominal"  # a scan keeps it best
+        if specs[best].scanned and out[best].objective < SCAN_WHEN * out["nominal"].objective:
+            out[best] = self.scanned(specs[best], throw, out[best], weight)
         if "joint" in specs and (joint_when is None or joint_when(out)):
-            best = min(modes, key=lambda mode: out[mode].objective) if modes else "nominal"
             start = self._better_start(specs["joint"], throw, weight, out[best].values, warm.get("joint"))
             out["joint"] = self.fit(specs["joint"], throw, start, prior_weight=weight)
         return out
@@ -607,7 +610,7 @@ class ThrowEstimator:
             for _ in range(SCAN_ROUNDS):
                 points = np.clip(estimate.values[name] + SCAN_OFFSETS, low, high)
                 thetas = np.column_stack([self.reduced.vector({**estimate.values, name: p}) for p in points])
-                objectives = self.costs(thetas, throw) + np.sum(prior.residuals(thetas[index]) ** 2, axis=0)
+                objectives = self.objectives(thetas, throw, prior, index)
                 k = int(np.argmin(objectives))
                 if objectives[k] >= estimate.objective * (1.0 - TOLERANCE):
                     break
