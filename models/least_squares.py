@@ -71,8 +71,10 @@ def levenberg_marquardt(linearise: Linearise, z0: np.ndarray, *, cost: Callable[
     for k in range(1, iterations + 1):
         move, gradient, hessian = _normal_equations(jacobian * scale, r, z, low, high)
         if not exact:  # the update only says whether the fit has converged; else the exact Jacobian goes on
-            predicted = _proposal(z, move, gradient, hessian, damping, scale, low, high)[2] if move.any() else 0.0
-            if predicted < tolerance * value / BROYDEN_MARGIN:
+            if not move.any():
+                break
+            step, trial, predicted = _proposal(z, move, gradient, hessian, damping, scale, low, high)
+            if predicted < tolerance * value / BROYDEN_MARGIN and np.array_equal(trial, z + step * scale):
                 break
             r, jacobian = linearise(z)
             exact = True
@@ -83,9 +85,15 @@ def levenberg_marquardt(linearise: Linearise, z0: np.ndarray, *, cost: Callable[
         for attempt in range(MAX_ATTEMPTS):
             step, trial, predicted = _proposal(z, move, gradient, hessian, damping, scale, low, high)
             # Converged (first attempt) or given up (after a failed one) once the step promises no visible
-            # decrease: the linear model's r'r, which is what a step this small would achieve.
+            # decrease: the linear model's r'r, which is what a step this small would achieve. A step the bounds
+            # cut short is not that step: cut along some parameters and whole along others, it may promise an
+            # increase where a shorter one promises a decrease (a large obstacle's fit, its supply's step cut at
+            # its bound, stopped at its grid point 34 % low), so it is damped and tried again.
             if predicted < tolerance * value:
-                break
+                if np.array_equal(trial, z + step * scale):
+                    break
+                damping *= 10
+                continue
             if residual is not None:
                 trial_residual = residual(trial)
                 trial_value = float(trial_residual @ trial_residual)

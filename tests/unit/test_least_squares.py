@@ -96,3 +96,23 @@ def test_the_updated_jacobian_is_exact_along_the_step_taken():
     one = levenberg_marquardt(linearise, start, residual=residual, iterations=1)
     np.testing.assert_allclose(one.jacobian @ (one.z - start), residual(one.z) - residual(start), atol=1e-12)
     assert not np.allclose(linearise(start)[1] @ (one.z - start), residual(one.z) - residual(start), atol=1e-3)
+
+
+def test_a_step_the_bounds_cut_short_is_damped_not_taken_for_convergence():
+    """Two parameters that trade along a narrow valley: the Gauss-Newton step moves both far, the bounds cut the
+    first short, and the cut step promises an increase. That ended the fit at its start (a large obstacle's fit
+    stopped at its grid point, 34 % low); a damped step goes on to the bounded minimum."""
+    from scipy.optimize import lsq_linear
+
+    a = np.array([[1.0, 0.99], [0.0, 0.05], [0.05, 0.0]])
+    b = np.array([0.0, -1.0, 1.0])
+    low, high = np.array([-1.0, -30.0]), np.array([0.5, 30.0])
+
+    def residual(z):
+        return a @ z - b
+
+    best = lsq_linear(a, b, bounds=(low, high), tol=1e-12).x
+    for kind in ({"residual": residual}, {"cost": lambda z: float(residual(z) @ residual(z))}):
+        solution = levenberg_marquardt(lambda z: (residual(z), a), np.zeros(2), lower=low, upper=high,
+                                       tolerance=1e-10, iterations=200, **kind)
+        np.testing.assert_allclose(solution.z, best, atol=1e-4)
