@@ -657,7 +657,25 @@ class SwitchDiagnoser:
             mean = float(np.sum(weights * values) / np.sum(weights))
             params[name], fit_std[name] = mean, float(np.sqrt(1.0 / np.sum(weights)))
             std[name] = float(np.hypot(fit_std[name], self.errors.std(name, mean, len(verdicts))))
+            if name == "bearing_friction":
+                std[name] = float(np.hypot(std[name], self._unseen_chairs(verdicts, weights)))
         return Combined(mode, params, std, len(verdicts), verdicts[0].index, fit_std)
+
+    def _unseen_chairs(self, verdicts: list[ThrowVerdict], weights: np.ndarray) -> float:
+        """What the chairs may have done since the throw before `verdicts` began, in bearing friction: a throw tells
+        their sum with a bearing's, not the split (CHAIRS_AS_BEARING), and only healthy throws move the chairs'
+        prior (Baseline.follow), so a bearing fitted k throws after the last healthy one holds what the chairs did
+        in between, beyond the one throw's change (DRIFT) its fit allows for. Weather persists (chairs dry out over
+        many throws), so k throws may change them k times as much; combined with `weights`, as the estimates are.
+        Seen on the fleet: chairs drying to twice their friction over 16 throws put a missing bearing's estimate
+        1000 to 1600 N·s/m high after 12 faulty throws, 3.7 of its standard deviations without this."""
+        drift = self._drift_prior()
+        if drift is None:
+            return 0.0
+        after = np.array([v.index - verdicts[0].index for v in verdicts], dtype=float)  # throws beyond the first
+        scale = 1.0 + self.errors.bias_relative.get("bearing_friction", 0.0)  # as _report corrects the bearing's
+        throws = float(np.sum(weights * after) / np.sum(weights))
+        return CHAIRS_AS_BEARING * DRIFT * float(np.exp(drift[0])) * throws / scale
 
     # -- persistence ------------------------------------------------------------------------------
     def state(self) -> dict:

@@ -100,3 +100,34 @@ def test_the_health_tracker_takes_the_model_error_that_stays_at_each_limit():
     switch = SwitchDiagnoser(unused, None, errors, limits={"bearing_friction": 4000.0})
     assert switch.health.model_error["bearing_friction"] == pytest.approx(errors.common("bearing_friction", 4000.0))
     assert switch.health.model_error["bearing_friction"] > 250.0  # not the absolute part alone
+
+
+def test_a_missing_bearing_carries_what_the_chairs_may_have_done_since_the_last_healthy_throw():
+    """A throw tells the sum of the chairs' and a bearing's friction, not the split, and only healthy throws move the
+    chairs' level: k faulty throws on, the chairs may have moved k times one throw's allowance (DRIFT), which the
+    combined bearing carries (fleet seed 2: chairs drying to twice their friction read as a bearing 1600 N·s/m
+    larger, 3.7 std off without it). One throw, or a switch not commissioned (no drift prior), adds nothing."""
+    from railswitch.models.reference import DIRECTIONS
+    from railswitch.models.switch_diagnosis import (CHAIRS_AS_BEARING, DRIFT, DRIFTING, Baseline, Reported,
+                                                    population)
+
+    unused = SimpleNamespace(reduced=SimpleNamespace(params=SimpleNamespace(plant=SimpleNamespace(drive=None))))
+    baseline = Baseline()
+    for direction in DIRECTIONS:
+        for _ in range(baseline.needed):
+            baseline.add(direction, {"bearing_friction": 0.0, "motor.coulomb_friction_nm": 0.05, DRIFTING: 0.02},
+                         {}, 1e-6)
+    baseline.follow(DRIFTING, 0.02)
+    commissioned = SwitchDiagnoser(unused, population(), ErrorModel(), baseline)
+    fresh = SwitchDiagnoser(unused, population(), ErrorModel())
+
+    def verdicts(count):
+        return [SimpleNamespace(index=10 + k, reported={"missing_bearing": Reported(
+            "missing_bearing", {"bearing_friction": 5000.0}, {}, 0.0, fit_std={"bearing_friction": 100.0})})
+            for k in range(count)]
+
+    assert commissioned.combine("missing_bearing", verdicts(1)).std["bearing_friction"] == pytest.approx(100.0)
+    six = commissioned.combine("missing_bearing", verdicts(6))
+    unseen = CHAIRS_AS_BEARING * DRIFT * 0.02 * np.mean(range(6))  # equal weights: the mean of 0..5 throws on
+    assert six.std["bearing_friction"] == pytest.approx(np.hypot(100.0 / np.sqrt(6), unseen))
+    assert fresh.combine("missing_bearing", verdicts(6)).std["bearing_friction"] == pytest.approx(100.0 / np.sqrt(6))
