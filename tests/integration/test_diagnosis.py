@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from railswitch.models.estimation import Measurement
+from railswitch.models.estimation import TOLERANCE, Measurement
 from railswitch.models.reference import throw_reference
 from railswitch.models.signals import MotorSignals
 from railswitch.models.switch import SwitchSimulation
@@ -86,10 +86,11 @@ def causal_diagnoser() -> Diagnoser:
 
 @pytest.mark.parametrize("direction, truth", [("left_to_right", {"left_bolt_offset": 0.1325}),
                                               ("right_to_left", {"right_bolt_offset": 0.1125})])
-def test_a_bolt_on_a_sawtooth_error_surface_is_found_by_the_scan_around_its_fit(causal_diagnoser, direction, truth):
-    """The causal rail's bolt error surface is a sawtooth whose teeth stop the solver at an edge (on these twin
-    throws 3.4 and 7.8 mm from the truth without the scan); the scan around the fit (HypothesisSpec.scanned)
-    finds the tooth of the truth."""
+def test_a_causal_bolt_between_grid_points_is_found_within_a_millimetre(causal_diagnoser, direction, truth):
+    """The causal rail's bolt error surface was a sawtooth while its fine-tuning could move how its force depends
+    on the acceleration (models/training.py): without the scan around the fit (HypothesisSpec.scanned) the solver
+    stopped at a tooth's edge on these twin throws, 3.4 and 7.8 mm from the truth. Trained with that dependence
+    held, the surface is smooth and the fit finds these bolts with or without the scan."""
     estimator = causal_diagnoser.estimator
     (name, value), = truth.items()
     mode = FAULT_PARAMETERS[name].mode
@@ -102,7 +103,7 @@ def test_fits_started_from_the_previous_throws_need_fewer_iterations_and_a_start
         diagnoser):
     """The switch's previous fits (`warm`) start this throw's where they fit better than the cold starts: the
     same estimates in fewer iterations; starts far off (a bolt at its end stop, the winding twice as
-    resistive) lose to the nominal values and the grid, and the fits are the cold ones to the bit."""
+    resistive) lose to the grid, and the fits end where the cold ones do."""
     estimator = diagnoser.estimator
     m = _twin_throw(estimator, "left_to_right", {"left_bolt_offset": 0.07})
     specs = diagnoser.switch("twin").specs("left_to_right")
@@ -114,8 +115,11 @@ def test_fits_started_from_the_previous_throws_need_fewer_iterations_and_a_start
     far = {mode: {**e.values, "left_bolt_offset": 0.19, "motor.resistance_ohm": 2 * e.values["motor.resistance_ohm"]}
            for mode, e in cold.items()}
     farther = estimator.fit_all(m, specs, warm=far)
-    for mode in ("nominal", "left_bolt", "joint"):
-        assert farther[mode].params == cold[mode].params, mode
+    for mode in ("left_bolt", "joint"):  # started from the nominal fit below: the same point to its last digits
+        assert farther[mode].params == pytest.approx(cold[mode].params, rel=1e-6, abs=1e-6), mode
+    # The nominal fit has no grid: a start whose other values are its own fit's beats the nominal values even with
+    # the winding at its bound, and it ends as low as the cold fit (in a valley flat to 1e-4 of the MSE).
+    assert farther["nominal"].objective == pytest.approx(cold["nominal"].objective, rel=TOLERANCE)
 
 
 def _coarse_points(estimator, monkeypatch) -> list[int]:
