@@ -4,7 +4,10 @@ For each representation: trains it (timed, deterministic, one thread per core), 
 the reduced switch model over the same two throws (14 s) in the same run, and
 validates on 25 random-push series of 100 s never used in training (MSE of rail
 position, velocity and force per series, written as JSON and a box plot; the
-worst series's position RMSE is printed beside the mean). `--stress N` also rolls
+worst series's position RMSE is printed beside the mean), and sweeps a bolt in
+quarter millimetres at the diagnosis's model rate: the current's peak as the blades
+start, against the plant's, and how far it strays from smooth (models/validation.py
+contact_peaks). `--stress N` also rolls
 each reduced switch over N stress pushes of 30 s and every fault at the ends of its
 range, at 10, 25, 50 and 100 samples/s, with one step per sample and with the
 diagnosis's substeps, and counts the rollouts that diverge.
@@ -32,7 +35,9 @@ from railswitch.models.reference import THROW_DURATION_S, throw_reference  # noq
 from railswitch.models.switch import SwitchSimulation  # noqa: E402
 from railswitch.models.reduced import ReducedParams  # noqa: E402
 from railswitch.models.training import RATE_HZ, VALIDATION_SEEDS, train  # noqa: E402
-from railswitch.models.validation import divergence, plant_series, validate  # noqa: E402
+from railswitch.models.estimation import MODEL_RATE_HZ  # noqa: E402
+from railswitch.models.validation import (  # noqa: E402
+    contact_peaks, divergence, plant_contact_peaks, plant_series, roughness, validate)
 from railswitch.schemas import RAIL_MODELS  # noqa: E402
 from railswitch.services.adapters import model_store  # noqa: E402
 from railswitch.services.adapters.compiled import MachineCode, compiled_plant  # noqa: E402
@@ -116,6 +121,7 @@ def main() -> None:
     plant = compiled_plant()
     plant_seconds = plant_two_throws_seconds(plant)
     series = plant_series(plant, VALIDATION_SEEDS)
+    plant_peaks = plant_contact_peaks(plant, MODEL_RATE_HZ)
     result, mses = {}, {}
     for name in args.models.split(","):
         representation = REPRESENTATIONS[name]
@@ -145,6 +151,11 @@ def main() -> None:
             "force_rmse_n": float(np.sqrt(np.mean(mses[name]["force"]))),
             "compiled": compiler.machine_code,
         }
+        peaks = contact_peaks(ReducedSwitch(representation, weights, rate_hz=MODEL_RATE_HZ, compiler=compiler))
+        result[name]["bolt_contact"] = {"peak_current_a": round(float(np.mean(peaks)), 3),
+                                        "plant_peak_current_a": round(float(np.mean(plant_peaks)), 3),
+                                        "roughness": round(roughness(peaks), 4),
+                                        "plant_roughness": round(roughness(plant_peaks), 4)}
         if args.stress:
             result[name]["stress"] = stress(representation, weights, args.stress)
     (out_dir / "validation.json").write_text(json.dumps({"summary": result, "mse_per_series": mses,

@@ -74,13 +74,13 @@ SCALES = {"left_bolt_offset": 0.05, "right_bolt_offset": 0.05, "bearing_friction
           "obstacle_friction": 1e5, "obstacle_position": 0.05, "drive_friction_nm": 0.05,
           "motor.coulomb_friction_nm": 0.05, "motor.torque_constant_nm_a": 0.01, "motor.resistance_ohm": 1.0,
           "motor.supply_v": 10.0, "rail.chair_friction_coefficient": 0.01}
-# A fault's parameter whose error surface is a sawtooth (HypothesisSpec.scanned): teeth over which the MSE falls
-# steadily, then jumps at an edge, where the solver stops however far the lowest tooth is. The causal rail's
-# bolt has them (teeth about 4 mm wide, the MSE falling 30 to 70 % across each): a 132.5 mm bolt fitted as
-# 119.9 mm, the lowest tooth's edge 12 mm on. poly's and nn's bolts fall smoothly to one minimum. So once a
-# scanned hypothesis fits a throw best and explains a tenth of the nominal fit's misfit (SCAN_WHEN), its
-# parameter is tried at SCAN_CAPACITY points SCAN_STEP apart around the fit, the rest held, and refitted from
-# the lowest where that is lower: two points on every tooth within 12 mm.
+# A fault's parameter whose error surface may hold more than one basin near the fit (HypothesisSpec.scanned),
+# where the solver stops in the first it meets. A bolt's did: the causal rail's, as fine-tuned before its inertia
+# was held (models/training.py), was a sawtooth with teeth about 4 mm wide that stopped a 132.5 mm bolt at 119.9 mm;
+# poly's and nn's have ripples of a few tenths of a per cent a millimetre apart, some of them lower than where
+# the solver stops. So once a scanned hypothesis fits a throw best and explains a tenth of the nominal fit's misfit
+# (SCAN_WHEN), its parameter is tried at SCAN_CAPACITY points SCAN_STEP apart around the fit, the rest held, and
+# refitted from the lowest where that is lower: two points on every 4 mm within 12 mm.
 SCAN_STEP = 0.0015
 SCAN_CAPACITY = 16
 SCAN_OFFSETS = SCAN_STEP * np.concatenate([np.arange(-SCAN_CAPACITY // 2, 0), np.arange(1, SCAN_CAPACITY // 2 + 1)])
