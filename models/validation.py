@@ -121,7 +121,7 @@ def divergence(reduced: ReducedSwitch, stress_series: int, first_seed: int = STR
 
 
 def contact_peak_a(current_a: np.ndarray, rail_position_m: np.ndarray, rate_hz: float) -> float:
-    """The largest current within CONTACT_WINDOW_S of the blades having moved CONTACT_MOVED_M (nan if they never did)."""
+    """The largest current within CONTACT_WINDOW_S of the blades having moved CONTACT_MOVED_M (nan: they never did)."""
     moved = np.flatnonzero(np.abs(rail_position_m - rail_position_m[0]) > CONTACT_MOVED_M)
     if not moved.size:
         return float("nan")
@@ -143,7 +143,8 @@ def plant_contact_peaks(plant: Plant, rate_hz: float) -> np.ndarray:
     """The plant's contact peaks over the same sweep, sampled at `rate_hz`."""
     peaks = []
     for bolt in CONTACT_BOLTS_M:
-        samples = SwitchSimulation(plant, rate_hz=rate_hz, faults={"left_bolt_offset": bolt}).throw(DIRECTIONS[0]).samples
+        sim = SwitchSimulation(plant, rate_hz=rate_hz, faults={"left_bolt_offset": bolt})
+        samples = sim.throw(DIRECTIONS[0]).samples
         peaks.append(contact_peak_a(np.asarray(samples.signals.current_a), samples.rail_position_m, rate_hz))
     return np.array(peaks)
 
