@@ -73,8 +73,8 @@ def levenberg_marquardt(linearise: Linearise, z0: np.ndarray, *, cost: Callable[
         if not exact:  # the update only says whether the fit has converged; else the exact Jacobian goes on
             if not move.any():
                 break
-            step, trial, predicted = _proposal(z, move, gradient, hessian, damping, scale, low, high)
-            if predicted < tolerance * value / BROYDEN_MARGIN and np.array_equal(trial, z + step * scale):
+            _, _, predicted, cut = _proposal(z, move, gradient, hessian, damping, scale, low, high)
+            if predicted < tolerance * value / BROYDEN_MARGIN and not cut:
                 break
             r, jacobian = linearise(z)
             exact = True
@@ -83,14 +83,14 @@ def levenberg_marquardt(linearise: Linearise, z0: np.ndarray, *, cost: Callable[
             break
         accepted, trial_linearised, trial_residual = False, None, None
         for attempt in range(MAX_ATTEMPTS):
-            step, trial, predicted = _proposal(z, move, gradient, hessian, damping, scale, low, high)
+            step, trial, predicted, cut = _proposal(z, move, gradient, hessian, damping, scale, low, high)
             # Converged (first attempt) or given up (after a failed one) once the step promises no visible
             # decrease: the linear model's r'r, which is what a step this small would achieve. A step the bounds
             # cut short is not that step: cut along some parameters and whole along others, it may promise an
             # increase where a shorter one promises a decrease (a large obstacle's fit, its supply's step cut at
             # its bound, stopped at its grid point 34 % low), so it is damped and tried again.
             if predicted < tolerance * value:
-                if np.array_equal(trial, z + step * scale):
+                if not cut:
                     break
                 damping *= 10
                 continue
@@ -136,14 +136,16 @@ def _normal_equations(scaled: np.ndarray, r: np.ndarray, z: np.ndarray, low: np.
 
 
 def _proposal(z: np.ndarray, move: np.ndarray, gradient: np.ndarray, hessian: np.ndarray, damping: float,
-              scale: np.ndarray, low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """The damped step (scaled units), the trial point it reaches within the bounds, and the decrease of r'r
-    that the linearised residual predicts there."""
+              scale: np.ndarray, low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, bool]:
+    """The damped step (scaled units), the trial point it reaches within the bounds, the decrease of r'r that the
+    linearised residual predicts there, and whether the bounds cut the step short."""
     step = np.zeros(z.size)
     step[move] = np.linalg.solve(hessian + damping * np.diag(np.diag(hessian) + 1e-12), -gradient[move])
-    trial = np.clip(z + step * scale, low, high)
+    reached = z + step * scale
+    trial = np.clip(reached, low, high)
     taken = ((trial - z) / scale)[move]  # parameters held at a bound do not move
-    return step, trial, float(-(2.0 * gradient[move] @ taken + taken @ hessian @ taken))
+    predicted = float(-(2.0 * gradient[move] @ taken + taken @ hessian @ taken))
+    return step, trial, predicted, not np.array_equal(trial, reached)
 
 
 def _broyden(jacobian: np.ndarray, change: np.ndarray, step: np.ndarray, scale: np.ndarray) -> np.ndarray:
