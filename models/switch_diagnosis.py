@@ -136,9 +136,13 @@ class ErrorModel:
         per_throw = min(one**2, (one**2 - many**2) * measured / (measured - 1.0))
         return one**2 - per_throw, per_throw
 
+    def slope(self, name: str) -> float:
+        """1 + r of estimate = truth(1 + r) + b: what a departure in the truth reads as in the estimate."""
+        return 1.0 + self.bias_relative.get(name, 0.0)
+
     def corrected(self, name: str, estimate: float) -> float:
         """The estimate less the model's bias: (estimate - b) / (1 + r) inverts estimate = truth(1 + r) + b."""
-        return (estimate - self.bias.get(name, 0.0)) / (1.0 + self.bias_relative.get(name, 0.0))
+        return (estimate - self.bias.get(name, 0.0)) / self.slope(name)
 
 
 @dataclass(frozen=True)
@@ -517,7 +521,7 @@ class SwitchDiagnoser:
             if name in estimate.params and (estimate.mode == "joint" or FAULT_PARAMETERS[name].mode == estimate.mode):
                 raw = estimate.values[name] - (b0 if name == "bearing_friction" else 0.0)
                 params[name] = self.errors.corrected(name, raw)
-                fit_std[name] = estimate.std[name] / (1.0 + self.errors.bias_relative.get(name, 0.0))
+                fit_std[name] = estimate.std[name] / self.errors.slope(name)
         std = {name: float(np.hypot(fit_std[name], self.errors.std(name, params[name]))) for name in params}
         nuisance = {name: estimate.values[name] for name in NUISANCES}
         return Reported(estimate.mode, params, std, estimate.mse, (), nuisance, fit_std)
@@ -606,8 +610,8 @@ class SwitchDiagnoser:
             value, std = out["bearing_friction"]
             chairs = verdict.estimates["missing_bearing"].values[DRIFTING]
             commissioned = self.baseline.level(verdict.direction, DRIFTING)[0]
-            scale = 1.0 + self.errors.bias_relative.get("bearing_friction", 0.0)  # as _report corrects the bearing's
-            out["bearing_friction"] = (value + CHAIRS_AS_BEARING * (chairs - commissioned) / scale, std)
+            chairs_as_bearing = CHAIRS_AS_BEARING * (chairs - commissioned) / self.errors.slope("bearing_friction")
+            out["bearing_friction"] = (value + chairs_as_bearing, std)  # corrected as _report corrects the bearing
         return out
 
     def _provisional_note(self, reason: str | None, provisional: bool) -> str | None:
@@ -673,9 +677,8 @@ class SwitchDiagnoser:
         if drift is None:
             return 0.0
         after = np.array([v.index - verdicts[0].index for v in verdicts], dtype=float)  # throws beyond the first
-        scale = 1.0 + self.errors.bias_relative.get("bearing_friction", 0.0)  # as _report corrects the bearing's
         throws = float(np.sum(weights * after) / np.sum(weights))
-        return CHAIRS_AS_BEARING * DRIFT * float(np.exp(drift[0])) * throws / scale
+        return CHAIRS_AS_BEARING * DRIFT * float(np.exp(drift[0])) * throws / self.errors.slope("bearing_friction")
 
     # -- persistence ------------------------------------------------------------------------------
     def state(self) -> dict:
