@@ -287,9 +287,9 @@ def switch_functions(reduced) -> list[ca.Function]:
 
 
 def switch_residuals(reduced, targets: list[SwitchTarget], functions: list[ca.Function] | None = None,
-                     held: np.ndarray | None = None) -> Residuals:
-    """Current, rail position and velocity inside the reduced switch model, as functions of the weights that are
-    not `held` (flat indices of weights kept at their values in `reduced`; none by default).
+                     free: np.ndarray | None = None) -> Residuals:
+    """Current, rail position and velocity inside the reduced switch model, as functions of the weights at `free`
+    (flat indices; all by default), the others kept at their values in `reduced`.
 
     The Jacobian comes from forward sensitivities carried through each step (ReducedSwitch.sensitivity_step over
     the weights, SWITCH_DIRECTIONS at a time): the derivatives CasADi's AD of the rollout gives, at a fraction of
@@ -304,7 +304,7 @@ def switch_residuals(reduced, targets: list[SwitchTarget], functions: list[ca.Fu
         columns = reduced.reference_columns(target.reference, chunks * SWITCH_CHUNK)
         runs.append((target, [columns[:, c * SWITCH_CHUNK:(c + 1) * SWITCH_CHUNK] for c in range(chunks)]))
     measured = [np.vstack([t.current_a, t.rail_position_m, t.rail_velocity_m_s]) for t in targets]
-    free = np.setdiff1d(np.arange(size), [] if held is None else held)
+    free = np.arange(size) if free is None else np.asarray(free)
     blocks = [free[first:first + k] for first in range(0, len(free), k)]
 
     def weights(value: np.ndarray) -> np.ndarray:
@@ -421,9 +421,9 @@ def train(representation: Representation, plant: Plant, *, seed: int = 0, series
         functions = functions if compiled is None else compiled.result()
     reduced = ReducedSwitch(representation, w)
     targets = nominal_switch_targets(plant, reduced) + [random_switch_target(plant, reduced, series_seeds[0])]
-    held = representation.acceleration_input_weights()  # how F depends on a: the regression's
-    free = np.setdiff1d(np.arange(representation.size), held)
-    z, stages["switch"] = _fit("switch", switch_residuals(reduced, targets, functions, held), w[free],
+    # how F depends on a stays the regression's
+    free = np.setdiff1d(np.arange(representation.size), representation.acceleration_input_weights())
+    z, stages["switch"] = _fit("switch", switch_residuals(reduced, targets, functions, free), w[free],
                                max(iterations // 4, 1), progress)
     w = w.copy()
     w[free] = z
