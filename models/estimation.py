@@ -406,12 +406,12 @@ class ThrowEstimator:
     def costs(self, thetas: np.ndarray, throw: PreparedThrow, coarse: bool = False) -> np.ndarray:
         """r'r of many parameter vectors (columns), GRID_CAPACITY to a mapped call, the smallest that takes them;
         `coarse`: with the model at GRID_RATE_HZ (what the grid ranks its points by)."""
-        timeline, chunk = (throw.grid, self.grid_chunk) if coarse else (throw.model, CHUNK_SAMPLES)
+        timeline, chunk, capacities = ((throw.grid, self.grid_chunk, self._grids) if coarse
+                                       else (throw.model, CHUNK_SAMPLES, self._batches))
         out = []
         for first in range(0, thetas.shape[1], GRID_CAPACITY):
             batch = thetas[:, first:first + GRID_CAPACITY]
             count = batch.shape[1]
-            capacities = self._grids if coarse else self._batches
             capacity = min(c for c in capacities if c >= count)
             evaluate = capacities[capacity]
             batch = np.hstack([batch, np.repeat(batch[:, :1], capacity - count, axis=1)])
