@@ -60,12 +60,7 @@ COVERAGE = 0.975  # on the calibration switches; held-out switches scatter more,
 # resistance (its temperature) by up to 10 % and the supply by up to SUPPLY_CHANGE.
 WEATHER_CHANGE = 1.3
 SUPPLY_CHANGE = 0.07  # a long cable's drop under other loads, a tired battery; the population's own spread is 10 %
-# Where the blades meet an obstacle is a place on the stroke, not a size: its error is in metres only. A bolt's
-# offset is a size from zero like the frictions, and a model's error on it may grow with it: causal reads a left
-# bolt 1.4 mm + 1.0 % of it high (40 calibration cases, the line's correlation with the truth .87), so one median
-# bias left large bolts 1 to 1.6 mm high on every throw and small ones low, beyond an envelope that shrinks over
-# throws (fleet seed 1: left-bolt coverage .833).
-POSITIONS = ("obstacle_position",)
+POSITIONS = ("left_bolt_offset", "right_bolt_offset", "obstacle_position")  # errors in metres only
 Progress = Callable[[str], None]
 
 
@@ -204,18 +199,17 @@ def estimate_errors(diagnoser: Diagnoser, plant: Plant, weight: float, gains: di
 
 def median_line(truth: np.ndarray, estimate: np.ndarray, proportional: bool) -> tuple[float, float]:
     """estimate - truth = b + r * truth, fitted by least absolute deviations (a median, robust to a few
-    misfits): (b, r); r = 0 for positions. The best line passes through two cases, so its slope is one of
-    theirs (or 0), and for a slope the best b is the median."""
+    misfits): (b, r); r = 0 for positions."""
     errors = estimate - truth
     if not proportional:
         return float(np.median(errors)), 0.0
-    i, j = np.triu_indices(len(truth), 1)
-    apart = np.abs(truth[i] - truth[j]) > 1e-12 * np.maximum(np.abs(truth[i]), 1e-12)
-    slopes = np.concatenate([[0.0], (errors[i] - errors[j])[apart] / (truth[i] - truth[j])[apart]])
-    offsets = np.median(errors[None, :] - slopes[:, None] * truth[None, :], axis=1)
-    spread = np.sum(np.abs(errors[None, :] - slopes[:, None] * truth[None, :] - offsets[:, None]), axis=1)
-    best = int(np.argmin(spread))
-    return float(offsets[best]), float(slopes[best])
+    best = None
+    for r in np.quantile(errors / np.maximum(np.abs(truth), 1e-12), np.linspace(0.05, 0.95, 37)):
+        b = float(np.median(errors - r * truth))
+        spread = float(np.sum(np.abs(errors - r * truth - b)))
+        if best is None or spread < best[0]:
+            best = (spread, b, float(r))
+    return best[1], best[2]
 
 
 def error_envelope(cases: np.ndarray, relative: bool) -> tuple[float, float]:
