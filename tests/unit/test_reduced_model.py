@@ -201,7 +201,8 @@ def test_the_shooting_stage_of_training_has_the_jacobian_of_the_rollout_in_z(nam
     symbol = ca.MX.sym("z", representation.size)
     roll = training.rail_step_function(representation, ReducedParams()).mapaccum("segment", training.SEGMENT_SAMPLES)
     w = representation.weights_from_z(symbol)
-    predicted = ca.horzcat(*[roll(starts[:, k], forces[:, :, k].reshape(2, -1), ca.repmat(w, 1, training.SEGMENT_SAMPLES))
+    repeated = ca.repmat(w, 1, training.SEGMENT_SAMPLES)
+    predicted = ca.horzcat(*[roll(starts[:, k], forces[:, :, k].reshape(2, -1), repeated)
                              for k in range(starts.shape[1])])
     scale = ca.DM([[1.0 / training.POSITION_RESIDUAL_M], [1.0 / training.VELOCITY_RESIDUAL_M_S]])
     target = measured.transpose(0, 2, 1).reshape(2, -1)
@@ -211,3 +212,33 @@ def test_the_shooting_stage_of_training_has_the_jacobian_of_the_rollout_in_z(nam
     np.testing.assert_allclose(r[:rows], np.asarray(expected_r).ravel(), rtol=1e-12, atol=1e-12)
     expected_j = np.asarray(expected_j)
     np.testing.assert_allclose(jacobian[:rows], expected_j, rtol=1e-8, atol=1e-9 * np.max(np.abs(expected_j)))
+
+
+def test_the_causal_regression_in_chunks_has_every_samples_residual_and_gradient():
+    """The regression evaluates its rows REGRESSION_CHUNK samples a call (the last chunk padded): the same residual
+    and Jacobian, row for row, as the one-sample Functions it is made of, on one thread or two."""
+    from railswitch.models import training
+    from railswitch.models.reduced import stock_rail_force
+
+    representation, reduced = REPRESENTATIONS["causal"], ReducedParams()
+    rng = np.random.default_rng(5)
+    samples = training.REGRESSION_CHUNK + 77  # a chunk and a padded one
+    t = np.arange(samples) / training.RATE_HZ
+    data = [training.RailData(force_n=rng.normal(0.0, 2000.0, samples), position_m=1.1 + 0.05 * np.sin(0.7 * t),
+                              velocity_m_s=0.035 * np.cos(0.7 * t), acceleration_m_s2=rng.normal(0.0, 0.5, samples))]
+    z = representation.initial_weights(1)
+    x, v, a, f = (ca.SX.sym(k) for k in "xvaf")
+    w = ca.SX.sym("w", representation.size)
+    r = (representation.force(x, v, a, w) - f - stock_rail_force(reduced, x, v)) / training.FORCE_SCALE_N
+    one = ca.Function("one", [x, v, a, f, w], [r, ca.jacobian(r, w)])
+    d = data[0]
+    expected = [np.asarray(out)
+                for out in one.map(samples)(d.position_m, d.velocity_m_s, d.acceleration_m_s2, d.force_n, z)]
+    expected_j = expected[1].reshape(representation.size, -1, order="F").T
+    for threads in (1, 2):
+        stage = training.causal_regression(representation, reduced, data, threads)
+        residual, jacobian = stage.linearise(z)
+        np.testing.assert_array_equal(residual[:samples], expected[0].ravel())
+        np.testing.assert_array_equal(jacobian[:samples], expected_j)
+        assert residual.size == samples + representation.size  # the ridge's rows follow, nothing of the padding
+        assert stage.cost(z) == pytest.approx(float(residual @ residual), rel=1e-12)
