@@ -27,7 +27,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from benchmarks.common import emit, parser, pin_to_one_core  # noqa: E402
-from railswitch.models.estimation import InPlace  # noqa: E402
+from railswitch.models.buffers import InPlace  # noqa: E402
 from railswitch.models.plant import Plant  # noqa: E402
 from railswitch.models.rail_models import REPRESENTATIONS  # noqa: E402
 from railswitch.models.reduced import ReducedSwitch  # noqa: E402
@@ -57,7 +57,7 @@ def plant_two_throws_seconds(plant: Plant, repeats: int = 3) -> float:
 
 def reduced_two_throws_seconds(reduced: ReducedSwitch, repeats: int = 30) -> float:
     """The same two throws: one rollout per throw, each from the end of the previous, evaluated on its own
-    buffers as the diagnosis evaluates it (models/estimation.py InPlace: no CasADi matrix made per call)."""
+    buffers as the diagnosis evaluates it (models/buffers.py InPlace: no CasADi matrix made per call)."""
     references = [reduced.reference_columns(throw_reference(d), SAMPLES) for d in ("left_to_right", "right_to_left")]
     rollout = InPlace(reduced.rollout(SAMPLES))
     fault = reduced.vector()

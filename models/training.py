@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from railswitch.models.estimation import InPlace
+from railswitch.models.buffers import InPlace
 from railswitch.models.integrators import ros2
 from railswitch.models.least_squares import levenberg_marquardt
 from railswitch.models.plant import Plant

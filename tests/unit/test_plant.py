@@ -181,3 +181,27 @@ def test_lock_holds_a_closed_blade_until_the_driving_bolt_arrives(plant):
         start = time_rails_pass(throw, closed + (0.01 if closed < 1.1 else -0.01))
         waiting = throw.samples.rail_position_m[: int(start * 50) - 10]
         assert np.max(np.abs(waiting - closed)) < 0.003  # within the lock's slack while the rod takes up the play
+
+
+def test_a_run_keeps_its_numbers_when_the_plant_runs_again_and_they_are_those_of_the_dm_interface(plant):
+    """Runs go through buffers the plant reuses (models/buffers.py): a trajectory owns its arrays, and they are the
+    numbers CasADi's matrix interface gives for the same call."""
+    from railswitch.models.reference import throw_reference
+
+    state = plant.start_throw(plant.rest_state(1.0))
+    first = plant.run(state, 2.0, 50.0, reference=throw_reference("left_to_right"))
+    kept = first.states.copy(), {name: values.copy() for name, values in first.signals.items()}
+    plant.run(state, 2.0, 50.0, {"obstacle_friction": 1e5, "obstacle_position": 1.05}, throw_reference("left_to_right"))
+    np.testing.assert_array_equal(first.states, kept[0])
+    for name, values in first.signals.items():
+        np.testing.assert_array_equal(values, kept[1][name])
+    dt, steps = 1.0 / 50.0, 100
+    t = dt * np.arange(1, steps + 1)
+    reference = throw_reference("left_to_right")
+    control = np.zeros((3, steps))
+    control[1] = (reference(t) - reference(t - dt)) / dt
+    control[0] = reference(t - dt) - control[1] * (t - dt)
+    control[2] = 1.0
+    p = np.concatenate([fault_vector(), plant.variables()])
+    expected = np.asarray(plant._integrator(dt, steps)(x0=state, p=p, u=control)["xf"])
+    np.testing.assert_array_equal(first.states, expected)
