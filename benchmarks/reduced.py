@@ -1,6 +1,7 @@
 """Reduced rail models against the plant: speed-up, training time, validation errors, divergence.
 
-For each representation: trains it (timed, deterministic, one thread per core), times the plant and
+For each representation: trains it (timed, deterministic, one thread per core; `same_as_loaded_model` says
+whether that gives the weights the diagnosis loads, shipped or the user's), times the plant and
 the reduced switch model over the same two throws (14 s) in the same run, and
 validates on 25 random-push series of 100 s never used in training (MSE of rail
 position, velocity and force per series, written as JSON and a box plot; the
@@ -135,6 +136,7 @@ def main() -> None:
                             compiler=MachineCode(exact=True)).weights
             pin_to_one_core()  # the rollouts are timed on one core
             train_seconds = time.perf_counter() - start
+            shipped = model_store.load(name).weights
         compiler = MachineCode()
         reduced = ReducedSwitch(representation, weights, compiler=compiler)
         reduced_seconds = reduced_two_throws_seconds(reduced)
@@ -151,6 +153,8 @@ def main() -> None:
             "force_rmse_n": float(np.sqrt(np.mean(mses[name]["force"]))),
             "compiled": compiler.machine_code,
         }
+        if not args.shipped:  # what the diagnosis runs on is the shipped (or the user's) model, not always this one
+            result[name]["same_as_loaded_model"] = bool(np.array_equal(weights, shipped))
         peaks = contact_peaks(ReducedSwitch(representation, weights, rate_hz=MODEL_RATE_HZ, compiler=compiler))
         result[name]["bolt_contact"] = {"peak_current_a": round(float(np.mean(peaks)), 3),
                                         "plant_peak_current_a": round(float(np.mean(plant_peaks)), 3),
