@@ -75,7 +75,9 @@ def draw_switch(seed: int) -> DrawnSwitch:
         "rail.chair_viscous_n_s_m": NOMINAL["rail.chair_viscous_n_s_m"] * np.exp(rng.normal(0.0, 0.05)),
         "rail.heel_flex_factor": NOMINAL["rail.heel_flex_factor"] * rng.normal(1.0, 0.05),
     }
-    plant = {name: float(np.clip(value, PLANT_PARAMETERS[name].low, PLANT_PARAMETERS[name].high))
+    # each within its schema's limits (min and max of floats: np.clip on a scalar was half of a draw's time, and
+    # the population's statistics draw 20 000 switches when a diagnoser starts)
+    plant = {name: min(max(float(value), PLANT_PARAMETERS[name].low), PLANT_PARAMETERS[name].high)
              for name, value in plant.items()}
     return DrawnSwitch(seed, plant, float(ambient), float(winding), lubrication)
 
