@@ -126,17 +126,16 @@ def main() -> None:
     result, mses = {}, {}
     for name in args.models.split(","):
         representation = REPRESENTATIONS[name]
+        loaded = model_store.load(name)  # what the diagnosis runs on: shipped, or the user's
         start = time.perf_counter()
         if args.shipped:
-            stored = model_store.load(name)
-            weights, train_seconds = stored.weights, stored.training["seconds"]
+            weights, train_seconds = loaded.weights, loaded.training["seconds"]
         else:
             os.sched_setaffinity(0, cores)  # training shares its data among the machine's cores, as `railswitch train`
             weights = train(representation, compiled_plant(exact=True), threads=len(cores),
                             compiler=MachineCode(exact=True)).weights
             pin_to_one_core()  # the rollouts are timed on one core
             train_seconds = time.perf_counter() - start
-            shipped = model_store.load(name).weights
         compiler = MachineCode()
         reduced = ReducedSwitch(representation, weights, compiler=compiler)
         reduced_seconds = reduced_two_throws_seconds(reduced)
@@ -146,15 +145,15 @@ def main() -> None:
             "reduced_wall_seconds": round(reduced_seconds, 5),
             "plant_wall_seconds": round(plant_seconds, 4),
             "train_seconds": round(train_seconds, 1),
-            "train_threads": len(cores) if not args.shipped else stored.training.get("threads", 1),
+            "train_threads": len(cores) if not args.shipped else loaded.training.get("threads", 1),
             "position_rmse_m": float(np.sqrt(np.mean(mses[name]["position"]))),
             "max_series_position_rmse_m": float(np.sqrt(np.max(mses[name]["position"]))),
             "velocity_rmse_m_s": float(np.sqrt(np.mean(mses[name]["velocity"]))),
             "force_rmse_n": float(np.sqrt(np.mean(mses[name]["force"]))),
             "compiled": compiler.machine_code,
         }
-        if not args.shipped:  # what the diagnosis runs on is the shipped (or the user's) model, not always this one
-            result[name]["same_as_loaded_model"] = bool(np.array_equal(weights, shipped))
+        if not args.shipped:  # the diagnosis runs on the loaded model, not always the one trained here
+            result[name]["same_as_loaded_model"] = bool(np.array_equal(weights, loaded.weights))
         peaks = contact_peaks(ReducedSwitch(representation, weights, rate_hz=MODEL_RATE_HZ, compiler=compiler))
         result[name]["bolt_contact"] = {"peak_current_a": round(float(np.mean(peaks)), 3),
                                         "plant_peak_current_a": round(float(np.mean(plant_peaks)), 3),

@@ -162,9 +162,12 @@ def shooting_segments(data: list[RailData]) -> tuple[np.ndarray, np.ndarray, np.
 NN_RIDGE = 1e-3  # weight decay of the NN spring and damper: keeps them smooth (no learned steps)
 
 
-def _map(function: ca.Function, count: int, threads: int) -> ca.Function:
-    """`function` over `count` columns, on `threads` threads (each column alone: the same numbers on any number)."""
-    return function.map(count, "thread", threads) if threads > 1 else function.map(count, "serial")
+def _map(function: ca.Function, count: int, threads: int, held: tuple[int, ...] = ()) -> ca.Function:
+    """`function` over `count` columns, on `threads` threads (each column alone: the same numbers on any number);
+    the inputs at `held` are one for every column, not repeated."""
+    parallel = {"max_num_threads": threads} if threads > 1 else {}
+    return function.map(f"{function.name()}_{count}", "thread" if threads > 1 else "serial", count, list(held), [],
+                        parallel)
 
 
 def shooting_sensitivity_step(representation: Representation, reduced: ReducedParams) -> ca.Function:
@@ -210,10 +213,9 @@ def acausal_residuals(representation: Representation, reduced: ReducedParams, da
     F = np.asarray(forces.transpose(0, 2, 1).reshape(2, -1))  # 2 x (N * segments), segment-major
     target = measured.transpose(0, 2, 1).reshape(2, -1)
     scale = np.array([[1.0 / POSITION_RESIDUAL_M], [1.0 / VELOCITY_RESIDUAL_M_S]])
-    ridge = np.sqrt(NN_RIDGE) if isinstance(representation, NNRail) else None  # networks only, not mass and xfix
-
-    def regularised(r: np.ndarray, zv: np.ndarray) -> np.ndarray:
-        return r if ridge is None else np.concatenate([r, ridge * zv[2:]])
+    ridge = np.zeros((0, size))  # weight decay's rows: nn's networks only, not its mass and xfix
+    if isinstance(representation, NNRail):
+        ridge = np.hstack([np.zeros((size - 2, 2)), np.sqrt(NN_RIDGE) * np.eye(size - 2)])
 
     def linearise(zv: np.ndarray):
         out = with_derivatives.views(A0, F, np.tile(zv[:, None], (1, segments)))[0]
@@ -221,13 +223,11 @@ def acausal_residuals(representation: Representation, reduced: ReducedParams, da
         jacobian = np.empty((r.size, size))
         jacobian[0::2] = out[2::2].T * scale[0]  # vec(dS/dz): x then v for each weight
         jacobian[1::2] = out[3::2].T * scale[1]
-        if ridge is not None:
-            jacobian = np.vstack([jacobian, np.hstack([np.zeros((size - 2, 2)), ridge * np.eye(size - 2)])])
-        return regularised(r, zv), jacobian
+        return np.concatenate([r, ridge @ zv]), np.vstack([jacobian, ridge])
 
     def cost(zv: np.ndarray) -> float:
         predicted = alone.views(S0, F, np.tile(zv[:, None], (1, segments)))[0]
-        r = regularised(((predicted - target) * scale).ravel(order="F"), zv)
+        r = np.concatenate([((predicted - target) * scale).ravel(order="F"), ridge @ zv])
         return float(r @ r)
     return Residuals(linearise, cost)
 
@@ -272,10 +272,9 @@ def causal_regression(representation: CausalRail, reduced: ReducedParams, data: 
     samples = columns.shape[1]
     chunks = -(-samples // REGRESSION_CHUNK)
     columns = np.hstack([columns, np.repeat(columns[:, -1:], chunks * REGRESSION_CHUNK - samples, axis=1)])
-    held = [4]  # the weights: one for every sample
-    per_chunk = [function.map(f"{function.name()}_chunk", "serial", REGRESSION_CHUNK, held, []) for function in row]
-    rows, alone = (InPlace(function.map(f"{function.name()}s", "thread" if threads > 1 else "serial", chunks, held, [],
-                                        {"max_num_threads": threads} if threads > 1 else {}))
+    held = (4,)  # the weights: one for every sample
+    per_chunk = [_map(function, REGRESSION_CHUNK, 1, held) for function in row]
+    rows, alone = (InPlace(_map(function, chunks, threads, held))
                    for function in (compiler(per_chunk) if compiler else per_chunk))
     decay = np.full(representation.size, RIDGE)
     decay[representation.acceleration_input_weights()] = ACCELERATION_INPUT_RIDGE
