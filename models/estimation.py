@@ -98,14 +98,15 @@ def effective_samples(residual: np.ndarray) -> float:
     """Number of independent residuals: N / (1 + 2 sum of autocorrelations), summed over the signals.
 
     The sum stops at the first pair of lags whose autocorrelations add up to a negative number
-    (Geyer's initial positive sequence, as in MCMC effective sample sizes).
+    (Geyer's initial positive sequence, as in MCMC effective sample sizes). The signals' transforms are taken
+    together: rows of a contiguous array give the same numbers as one signal at a time, in one call.
     """
+    columns = np.ascontiguousarray(np.atleast_2d(residual.T))
+    n = columns.shape[1]
+    centred = columns - columns.mean(axis=1, keepdims=True)
+    spectrum = np.fft.rfft(centred, 2 * n, axis=1)
     total = 0.0
-    for column in np.atleast_2d(residual.T):
-        n = len(column)
-        centred = column - column.mean()
-        spectrum = np.fft.rfft(centred, 2 * n)
-        acf = np.fft.irfft(spectrum * np.conj(spectrum))[:n]
+    for acf in np.fft.irfft(spectrum * np.conj(spectrum), axis=1)[:, :n]:
         if acf[0] <= 0:
             total += n
             continue
@@ -261,7 +262,8 @@ class _Timeline:
         # falls between two (column 0 of the model's outputs is the start itself)
         needed = int(np.max(index + (fraction > 0)))
         chunks = max(1, int(np.ceil(needed / chunk)))
-        refs = [reduced.reference_columns(m.reference, chunk, first=c * chunk).ravel(order="F") for c in range(chunks)]
+        columns = reduced.reference_columns(m.reference, chunks * chunk)  # every chunk's at once, then split
+        refs = [columns[:, c * chunk:(c + 1) * chunk].ravel(order="F") for c in range(chunks)]
         return cls(refs, index, fraction, not fraction.any())
 
     def at_samples(self, y: np.ndarray) -> np.ndarray:
@@ -365,7 +367,8 @@ class ThrowEstimator:
         return (differences * throw.inverse_scale[:, None]).ravel() / np.sqrt(differences.size)
 
     def residuals(self, theta: np.ndarray, throw: PreparedThrow) -> np.ndarray:
-        return self._scaled(self._at_samples(self.outputs(theta, throw)[throw.rows], throw) - throw.measured.T, throw)
+        measured = [_MEASURED_ROWS[row] for row in throw.rows]  # the signals measured, among OUTPUTS
+        return self._scaled(self._at_samples(self.all_outputs(theta, throw)[measured], throw) - throw.measured.T, throw)
 
     def cost(self, theta: np.ndarray, throw: PreparedThrow) -> float:
         r = self.residuals(theta, throw)
@@ -417,9 +420,15 @@ class ThrowEstimator:
             columns = slice(1 + c * CHUNK_SAMPLES, 1 + (c + 1) * CHUNK_SAMPLES)
             aug, y[:, columns], dy[:, columns] = self._sensitivity[k].views(aug, refs, theta, seeds)
         r = self._scaled(self._at_samples(y[throw.rows], throw) - throw.measured.T, throw)
-        # every free parameter's derivative rows at once: parameters x signals measured x N, scaled as _scaled does
-        derivatives = self._at_samples(dy.reshape(k, len(MEASURED), -1)[:len(index)][:, throw.rows], throw)
-        scaled = derivatives * throw.inverse_scale[None, :, None] / np.sqrt(r.size)
+        # every free parameter's derivative rows at once, (parameter, signal measured) x N, scaled as _scaled does
+        rows = [j * len(MEASURED) + i for j in range(len(index)) for i in throw.rows]
+        scale = np.tile(throw.inverse_scale, len(index))[:, None]
+        if throw.model.on_grid:  # one gather, then the scaling in place
+            scaled = dy[np.ix_(rows, throw.model.index)]
+            scaled *= scale
+        else:
+            scaled = self._at_samples(dy[rows], throw) * scale
+        scaled /= np.sqrt(r.size)
         return r, scaled.reshape(len(index), -1).T
 
     # -- hypotheses ------------------------------------------------------------------------

@@ -140,12 +140,15 @@ def _proposal(z: np.ndarray, move: np.ndarray, gradient: np.ndarray, hessian: np
     """The damped step (scaled units), the trial point it reaches within the bounds, the decrease of r'r that the
     linearised residual predicts there, and whether the bounds cut the step short."""
     step = np.zeros(z.size)
-    step[move] = np.linalg.solve(hessian + damping * np.diag(np.diag(hessian) + 1e-12), -gradient[move])
+    damped = hessian.copy()
+    damped.flat[::len(damped) + 1] += damping * (np.diagonal(hessian) + 1e-12)  # Marquardt's damping on the diagonal
+    moving = gradient[move]
+    step[move] = np.linalg.solve(damped, -moving)
     reached = z + step * scale
-    trial = np.clip(reached, low, high)
+    trial = np.minimum(np.maximum(reached, low), high)
     taken = ((trial - z) / scale)[move]  # parameters held at a bound do not move
-    predicted = float(-(2.0 * gradient[move] @ taken + taken @ hessian @ taken))
-    return step, trial, predicted, not np.array_equal(trial, reached)
+    predicted = float(-(2.0 * moving @ taken + taken @ hessian @ taken))
+    return step, trial, predicted, bool((trial != reached).any())
 
 
 def _broyden(jacobian: np.ndarray, change: np.ndarray, step: np.ndarray, scale: np.ndarray) -> np.ndarray:

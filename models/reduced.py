@@ -47,6 +47,7 @@ STATES = ("angle_rad", "velocity_rad_s", "integral_v", "current_a", "rail_positi
 NUISANCES = ("motor.coulomb_friction_nm", "motor.torque_constant_nm_a", "motor.resistance_ohm", "motor.supply_v",
              "rail.chair_friction_coefficient")
 PARAMETERS = FAULT_ORDER + NUISANCES  # the reduced model's parameter vector
+_KNOWN = frozenset(PARAMETERS)
 OUTPUTS = ("current_a", "angle_rad", "velocity_rad_s", "rail_position_m", "rail_velocity_m_s", "drive_force_n")
 
 
@@ -200,17 +201,18 @@ class ReducedSwitch:
         self._chair_normal_n = float(GRAVITY_M_S2 * np.sum(beam.masses_kg * beam.shape))
         self._nominal_nuisance = {name: float(getattr(getattr(params.plant, name.split(".")[0]), name.split(".")[1]))
                                   for name in NUISANCES}
+        self._nominal = {**{name: FAULT_PARAMETERS[name].nominal for name in FAULT_ORDER}, **self._nominal_nuisance}
         self.step = self._build_step()
         self.compiler = compiler
 
     def nominal(self) -> dict[str, float]:
         """Every parameter at its nominal value: faults none, the switch as built."""
-        return {**{name: FAULT_PARAMETERS[name].nominal for name in FAULT_ORDER}, **self._nominal_nuisance}
+        return dict(self._nominal)
 
     def vector(self, values: dict[str, float] | None = None) -> np.ndarray:
         """The parameter vector (PARAMETERS order): nominal where not given."""
-        full = {**self.nominal(), **(values or {})}
-        unknown = set(full) - set(PARAMETERS)
+        full = {**self._nominal, **(values or {})}
+        unknown = full.keys() - _KNOWN
         if unknown:
             raise ValueError(f"unknown parameters {sorted(unknown)}; accepted: {', '.join(PARAMETERS)}")
         return np.array([full[name] for name in PARAMETERS], dtype=float)
