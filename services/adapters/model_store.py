@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
@@ -55,6 +55,7 @@ class StoredModel:
     error_model: dict  # {"absolute": {...}, "relative": {...}}: the model's error on each fault parameter
     model_weight: float  # healthy throws' nominal MSE over effective samples (the priors' weight)
     path: Path
+    healthy_check: dict = field(default_factory=dict)  # false alarms on held-out healthy switches; empty: never checked
 
     @property
     def shipped(self) -> bool:
@@ -71,7 +72,7 @@ def load(name: str) -> StoredModel:
     calibration = document.get("calibration", {})
     return StoredModel(representation, weights, document["training"], bearing, document.get("validation", {}),
                        calibration.get("healthy_gains", {}), calibration.get("error_model", {}),
-                       float(calibration.get("model_weight", 0.0)), path)
+                       float(calibration.get("model_weight", 0.0)), path, calibration.get("healthy_check", {}))
 
 
 def weights_document(representation: Representation, weights: np.ndarray, training: dict) -> dict:

@@ -18,6 +18,11 @@ Three steps, each on plant throws the diagnosis never sees otherwise:
    parameter, the absolute (positions) or relative (frictions) error that brings 97.5 % of the estimates
    within two standard deviations: an absolute part (a) and, for frictions, a relative one (r), the
    pair with the least mean a + r|value| among those that cover 97.5 %.
+4. Held-out healthy switches of the population, noise 1 %, diagnosed with the calibration just made from their
+   first throw on (commissioning included) through a change of weather: the false alarms per 1000 throws. A model
+   that fits its training series well can still misfit healthy switches in a way that reads as a fault (an nn
+   retrained with today's trainer validated better than the shipped one and then raised 29 to 40 false alarms per
+   1000 healthy fleet throws), which no validation of positions shows. The check says so before the model is used.
 """
 from __future__ import annotations
 
@@ -61,6 +66,12 @@ COVERAGE = 0.975  # on the calibration switches; held-out switches scatter more,
 WEATHER_CHANGE = 1.3
 SUPPLY_CHANGE = 0.07  # a long cable's drop under other loads, a tired battery; the population's own spread is 10 %
 POSITIONS = ("left_bolt_offset", "right_bolt_offset", "obstacle_position")  # errors in metres only
+CHECK_SWITCHES = 10  # step 4: held-out healthy switches,
+CHECK_THROWS = 20  # each diagnosed over this many throws (commissioning included; the weather changes halfway)
+CHECK_SEED = FIRST_SEED + 3000  # apart from the switches of steps 2 and 3
+# Step 4 passes at up to this many false alarms per 1000 healthy throws: one alarm in its 200 throws (5) passes, three
+# fail. The shipped models give none on benchmarks.fleet; the retrained nn above would give some six here.
+FALSE_ALARM_LIMIT = 10.0
 Progress = Callable[[str], None]
 
 
@@ -140,6 +151,16 @@ def fault_cases(per_mode: int, first_seed: int) -> list[FaultCase]:
     return cases
 
 
+def changed_weather(own: dict[str, float], rng: np.random.Generator) -> dict[str, float]:
+    """A switch's own variables after a change of weather: winding resistance within +-10 %, supply within
+    +-SUPPLY_CHANGE, chairs up to WEATHER_CHANGE times wetter or drier."""
+    own = dict(own)
+    own["motor.resistance_ohm"] *= rng.uniform(0.9, 1.1)
+    own["motor.supply_v"] *= rng.uniform(1.0 - SUPPLY_CHANGE, 1.0 + SUPPLY_CHANGE)
+    own["rail.chair_friction_coefficient"] *= np.exp(rng.uniform(-1.0, 1.0) * np.log(WEATHER_CHANGE))
+    return own
+
+
 def commissioned(estimator, prior, plant: Plant, seed: int, noise: float) -> tuple[SwitchDiagnoser, SimulatedThrows]:
     """A population switch whose diagnoser has seen its healthy throws until commissioned."""
     source = SimulatedThrows(f"s{seed}", SwitchSimulation(plant, own=draw_switch(seed).plant, noise_rel=noise, seed=seed))
@@ -161,12 +182,7 @@ def estimate_errors(diagnoser: Diagnoser, plant: Plant, weight: float, gains: di
     cases = fault_cases(per_mode, FIRST_SEED + 1000)
     for k, case in enumerate(cases):
         switch, source = commissioned(estimator, prior, plant, case.seed, NOISE)
-        weather = np.random.default_rng(case.seed)
-        own = dict(source.sim.own)
-        own["motor.resistance_ohm"] *= weather.uniform(0.9, 1.1)
-        own["motor.supply_v"] *= weather.uniform(1.0 - SUPPLY_CHANGE, 1.0 + SUPPLY_CHANGE)
-        own["rail.chair_friction_coefficient"] *= np.exp(weather.uniform(-1.0, 1.0) * np.log(WEATHER_CHANGE))
-        source.sim.set_own(own)
+        source.sim.set_own(changed_weather(source.sim.own, np.random.default_rng(case.seed)))
         source.sim.set_faults(case.faults)
         seeing = []
         for throw in (throw_input(source.next()) for _ in range(FAULTY_THROWS)):
@@ -195,6 +211,31 @@ def estimate_errors(diagnoser: Diagnoser, plant: Plant, weight: float, gains: di
             errors[prefix + "absolute"][name], errors[prefix + "relative"][name] = error_envelope(needed, relative)
         errors["throws"][name] = float(np.median(seen))
     return ErrorModel(**errors)
+
+
+def healthy_check(new_switch: Callable[[str], SwitchDiagnoser], plant: Plant, switches: int = CHECK_SWITCHES,
+                  throws: int = CHECK_THROWS, progress: Progress | None = None) -> dict:
+    """Step 4: false alarms per 1000 throws of held-out healthy switches, each diagnosed by `new_switch(its id)`
+    (a diagnoser with the calibration to check) from its first throw on, the weather changed halfway; a switch
+    whose commissioning does not complete in its throws fails the check too."""
+    alarms = uncommissioned = 0
+    for k in range(switches):
+        seed = CHECK_SEED + k
+        source = SimulatedThrows(f"h{seed}", SwitchSimulation(plant, own=draw_switch(seed).plant, noise_rel=NOISE,
+                                                              seed=seed))
+        switch = new_switch(source.switch_id)
+        for throw in range(throws):
+            if throw == throws // 2:
+                source.sim.set_own(changed_weather(source.sim.own, np.random.default_rng(seed)))
+            alarms += switch.diagnose(throw_input(source.next())).decision != "nominal"
+        uncommissioned += not switch.baseline.complete
+        if progress:
+            progress(f"held-out healthy switch {k + 1} of {switches}")
+    per_1000 = 1000.0 * alarms / max(switches * throws, 1)
+    return {"switches": switches, "throws": switches * throws, "false_alarms": alarms,
+            "per_1000_throws": round(per_1000, 1), "uncommissioned": uncommissioned,
+            "limit_per_1000_throws": FALSE_ALARM_LIMIT,
+            "passed": per_1000 <= FALSE_ALARM_LIMIT and uncommissioned == 0}
 
 
 def median_line(truth: np.ndarray, estimate: np.ndarray, proportional: bool) -> tuple[float, float]:
@@ -236,8 +277,10 @@ def calibrate(name: str, plant: Plant | None = None, progress: Progress | None =
     diagnoser = Diagnoser(name, port={d: port[d] for d in DIRECTIONS})
     weight, gains = healthy_statistics(diagnoser, plant, progress=progress)
     errors = estimate_errors(diagnoser, plant, weight, gains, progress=progress)
+    prior = population(gains, weight)
+    check = healthy_check(lambda _: SwitchDiagnoser(diagnoser.estimator, prior, errors), plant, progress=progress)
     return {"bearing_port": port, "calibration": {
         "model_weight": weight, "healthy_gains": gains,
-        "error_model": dataclasses.asdict(errors),
+        "error_model": dataclasses.asdict(errors), "healthy_check": check,
         "switches": {"healthy": HEALTHY_SWITCHES, "faulty_per_mode": FAULTY_PER_MODE, "faulty_throws": FAULTY_THROWS,
                      "first_seed": FIRST_SEED, "noise": NOISE, "coverage": COVERAGE}}}

@@ -7,6 +7,7 @@ every throw, so the live diagnoser can keep it on disk (or on the bus) and resum
 """
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
@@ -42,6 +43,8 @@ from railswitch.services.adapters.compiled import MachineCode
 from railswitch.services.core.switch_messages import switch_messages
 from railswitch.services.core.throw_cutter import CutThrow, ThrowCutter
 
+log = logging.getLogger("railswitch.diagnoser")
+
 
 @dataclass(frozen=True)
 class DiagnosedThrow:
@@ -76,6 +79,10 @@ class Diagnoser:
         """The estimator, built (and compiled, once per machine: services/adapters/compiled.py) on first use."""
         if self._estimator is None:
             stored = model_store.load(self.model)
+            if not stored.healthy_check.get("passed", True):
+                log.warning("model %s (%s) failed its check on held-out healthy switches: %s false alarms per 1000 "
+                            "throws (limit %s); expect false alarms", self.model, stored.path,
+                            stored.healthy_check.get("per_1000_throws"), stored.healthy_check.get("limit_per_1000_throws"))
             params = ReducedParams(bearing_port=port_pairs(self.port or stored.bearing_port))
             reduced = ReducedSwitch(stored.representation, stored.weights, params, rate_hz=MODEL_RATE_HZ)
             self._machine_code = MachineCode() if self.compiled else None

@@ -16,7 +16,8 @@ from railswitch.models.training import TRAIN_SEEDS, train
 from railswitch.models.validation import quick_validation
 from railswitch.services.adapters import model_store
 from railswitch.services.adapters.compiled import MachineCode, compiled_plant
-from railswitch.services.core.calibration import calibrate
+from railswitch.services.core.calibration import calibrate, healthy_check
+from railswitch.services.core.fleet_diagnoser import Diagnoser
 
 
 def train_and_save(name: str, *, seed: int = 0, iterations: int = 40, out_dir: str | None = None,
@@ -49,16 +50,43 @@ def train_and_save(name: str, *, seed: int = 0, iterations: int = 40, out_dir: s
     return model_store.save(name, document, out_dir=out_dir, replace_shipped=replace_shipped), seconds
 
 
-def calibrate_and_save(name: str, *, replace_shipped: bool = False) -> tuple[Path, dict]:
+class CheckFailed(Exception):
+    """A calibration whose held-out healthy switches raise too many false alarms, not written over the shipped
+    model."""
+
+
+def calibrate_and_save(name: str, *, replace_shipped: bool = False, check_only: bool = False) -> tuple[Path, dict]:
     """Calibrate a model against the plant over the population (services/core/calibration.py) and store
-    the port and the calibration with its parameters (the user directory unless told)."""
+    the port and the calibration with its parameters (the user directory unless told). `check_only`: only its
+    step 4 (false alarms on held-out healthy switches) on the calibration stored now, stored beside it. A
+    calibration that fails the check is never written over the shipped model (CheckFailed)."""
     with Progress(TextColumn(f"[bold]{name}[/] {{task.description}}"), TimeElapsedColumn(), console=Console(stderr=True),
                   disable=not sys.stderr.isatty()) as progress:
         task = progress.add_task("calibrating")
-        found = calibrate(name, progress=lambda text: progress.update(task, description=text))
-    document = model_store.read_document(name)
+
+        def report(text: str) -> None:
+            progress.update(task, description=text)
+
+        document = model_store.read_document(name)
+        if check_only:
+            diagnoser = Diagnoser(name)
+            check = healthy_check(diagnoser.switch, compiled_plant(), progress=report)
+            found = {"calibration": {**document.get("calibration", {}), "healthy_check": check}}
+        else:
+            found = calibrate(name, progress=report)
+    if replace_shipped and not found["calibration"]["healthy_check"]["passed"]:
+        raise CheckFailed(check_summary(found["calibration"]["healthy_check"]) + "; the shipped model is left as it was")
     document.update(found)
     return model_store.save(name, document, replace_shipped=replace_shipped), found
+
+
+def check_summary(check: dict) -> str:
+    """One line on a held-out healthy check."""
+    text = (f"{check['false_alarms']} false alarms in {check['throws']} throws of {check['switches']} held-out healthy "
+            f"switches ({check['per_1000_throws']:g} per 1000, limit {check['limit_per_1000_throws']:g})")
+    if check["uncommissioned"]:
+        text += f", {check['uncommissioned']} never commissioned"
+    return text + (": passed" if check["passed"] else ": FAILED")
 
 
 def describe_reduced() -> dict:
@@ -73,7 +101,7 @@ def describe_reduced() -> dict:
                      "parameters_file": str(stored.path), "shipped": stored.shipped, "trained": stored.training,
                      "bearing_port": stored.bearing_port, "validation": stored.validation,
                      "calibration": {"model_weight": stored.model_weight, "healthy_gains": stored.healthy_gains,
-                                     "error_model": stored.error_model}}
+                                     "error_model": stored.error_model, "healthy_check": stored.healthy_check}}
     return out
 
 

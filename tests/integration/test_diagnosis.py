@@ -281,3 +281,25 @@ def test_shipped_bearing_port_is_what_calibration_on_the_plant_gives(plant):
         assert fresh[direction]["gain"] == pytest.approx(shipped[direction]["gain"], rel=1e-3)
         assert fresh[direction]["offset_s_m"] == pytest.approx(shipped[direction]["offset_s_m"], abs=5.0)
         assert 0.9 < shipped[direction]["gain"] < 1.0  # distributed friction acts at the drive point a little weaker
+
+
+def test_calibration_check_fails_a_model_that_misfits_healthy_switches(diagnoser, plant):
+    """Step 4 of `railswitch calibrate` (services/core/calibration.py healthy_check): held-out healthy switches
+    diagnosed from their first throw. The shipped poly raises no alarm on two of them; the same model with its rail's
+    force 10 % off (a rail that fits its training series but not the switches, as a retrained model may) raises
+    alarms and never commissions: the check fails."""
+    from railswitch.models.estimation import MODEL_RATE_HZ, ThrowEstimator
+    from railswitch.models.reduced import ReducedParams, ReducedSwitch, port_pairs
+    from railswitch.models.switch_diagnosis import ErrorModel, SwitchDiagnoser, population
+    from railswitch.services.adapters import model_store
+    from railswitch.services.core.calibration import healthy_check
+
+    shipped = healthy_check(diagnoser.switch, plant, switches=2, throws=12)
+    assert shipped["passed"] and shipped["false_alarms"] == 0, shipped
+    stored = model_store.load("poly")
+    off = ReducedSwitch(stored.representation, 1.1 * stored.weights,
+                        ReducedParams(bearing_port=port_pairs(stored.bearing_port)), rate_hz=MODEL_RATE_HZ)
+    estimator = ThrowEstimator(off)  # CasADi's virtual machine: no machine code for a model used once
+    prior, errors = population(stored.healthy_gains, stored.model_weight), ErrorModel(**stored.error_model)
+    misfit = healthy_check(lambda _: SwitchDiagnoser(estimator, prior, errors), plant, switches=2, throws=12)
+    assert not misfit["passed"] and misfit["false_alarms"] > 0, misfit
