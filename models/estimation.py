@@ -357,10 +357,6 @@ class ThrowEstimator:
             state, y[:, 1 + c * CHUNK_SAMPLES:1 + (c + 1) * CHUNK_SAMPLES] = self._chunk.views(state, refs, theta)
         return y
 
-    def outputs(self, theta: np.ndarray, throw: PreparedThrow) -> np.ndarray:
-        """The measured outputs of the model, 3 x (1 + model samples), the start first."""
-        return self.all_outputs(theta, throw)[_MEASURED_ROWS]
-
     def _scaled(self, differences: np.ndarray, throw: PreparedThrow) -> np.ndarray:
         """Differences (signals measured x N) scaled, stacked signal by signal, over sqrt(their number): r'r is
         the MSE."""

@@ -20,7 +20,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default: the user's model directory, $RAILSWITCH_MODELS)")
     parser.add_argument("--check-only", action="store_true",
                         help="only count the false alarms of the stored calibration on held-out healthy switches "
-                             "(about a minute per model), and store the count beside it")
+                             "(two to five minutes per model), and store the count beside it")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -66,11 +66,15 @@ COVERAGE = 0.975  # on the calibration switches; held-out switches scatter more,
 WEATHER_CHANGE = 1.3
 SUPPLY_CHANGE = 0.07  # a long cable's drop under other loads, a tired battery; the population's own spread is 10 %
 POSITIONS = ("left_bolt_offset", "right_bolt_offset", "obstacle_position")  # errors in metres only
-CHECK_SWITCHES = 10  # step 4: held-out healthy switches,
-CHECK_THROWS = 20  # each diagnosed over this many throws (commissioning included; the weather changes halfway)
+# Step 4: held-out healthy switches, each diagnosed over CHECK_THROWS throws (commissioning included; the weather
+# changes halfway). A model's misfit that reads as a fault is a property of some switches, not of every throw: the
+# retrained nn above alarmed on 2 of 40 such switches, 11 throws each (27.5 per 1000 throws; the fleet's 28.8), and
+# ten switches (200 throws) drew none of them. Forty miss a misfit that one switch in twenty shows one time in eight.
+CHECK_SWITCHES = 40
+CHECK_THROWS = 20
 CHECK_SEED = FIRST_SEED + 3000  # apart from the switches of steps 2 and 3
-# Step 4 passes at up to this many false alarms per 1000 healthy throws: one alarm in its 200 throws (5) passes, three
-# fail. The shipped models give none on benchmarks.fleet; the retrained nn above would give some six here.
+# Step 4 passes at up to this many false alarms per 1000 healthy throws (8 in its 800). The shipped models give
+# none on benchmarks.fleet.
 FALSE_ALARM_LIMIT = 10.0
 Progress = Callable[[str], None]
 
