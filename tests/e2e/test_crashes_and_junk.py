@@ -124,7 +124,8 @@ def test_a_diagnoser_killed_during_a_throw_and_restarted_diagnoses_the_next_full
     by_throw = collector.decisions()
     assert by_throw["sw1", 0] == "missing_bearing"
     assert ("sw1", 1) not in by_throw  # its start went by while no diagnoser ran
-    assert by_throw["sw1", next_full] == "missing_bearing"
+    reasons = {d.throw_index: d.reason for d in collector.received if d.switch_id == "sw1"}
+    assert by_throw["sw1", next_full] == "missing_bearing", (next_full, reasons)  # why, when it is not
 
 
 def test_services_reconnect_after_a_router_restart_and_the_recording_shows_a_bounded_gap(tmp_path):
