@@ -46,6 +46,8 @@ def run(args: argparse.Namespace) -> int:
                               f"std {errors['absolute'][n]:.3g} {FAULT_PARAMETERS[n].unit} + {errors['relative'][n]:.1%} "
                               f"over {errors['throws'][n]:g} throws, {errors['one_absolute'][n]:.3g} "
                               f"{FAULT_PARAMETERS[n].unit} + {errors['one_relative'][n]:.1%} over one"
+                              + (f", unit {errors['unit_relative'][n]:.1%} in every throw"
+                                 if n in errors.get("unit_relative", {}) else "")
                               for n in errors["absolute"])
             print(f"{name}: bearing port {ports}; model error {model}; {check} -> {path}")
     except OSError as error:

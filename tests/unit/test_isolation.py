@@ -91,6 +91,21 @@ def test_the_model_error_part_that_differs_between_throws_averages_out_and_the_c
     assert same.std("x", 0.0, throws=1) == same.std("x", 0.0, throws=9) == 0.002
 
 
+def test_the_units_torque_constant_is_common_to_every_throw_and_scales_with_the_value():
+    """A force read through the current is off by the unit's torque constant in every throw alike: its relative
+    spread adds to the common part at any number of throws, in proportion to the value."""
+    measured = dict(absolute={"drive_friction_nm": 0.001}, one_absolute={"drive_friction_nm": 0.003},
+                    throws={"drive_friction_nm": 6.0})
+    errors, without = ErrorModel(**measured, unit_relative={"drive_friction_nm": 0.02}), ErrorModel(**measured)
+    for throws in (1, 6, 10_000):
+        for value in (0.05, 0.25):
+            assert errors.std("drive_friction_nm", value, throws) == pytest.approx(
+                np.hypot(without.std("drive_friction_nm", value, throws), 0.02 * value), rel=1e-12)
+    assert errors.common("drive_friction_nm", 0.25) == pytest.approx(np.hypot(without.common("drive_friction_nm", 0.25),
+                                                                               0.005), rel=1e-12)
+    assert ErrorModel(unit_relative={"x": 0.02}).std("x", 0.1) == pytest.approx(0.002)
+
+
 def test_the_health_tracker_takes_the_model_error_that_stays_at_each_limit():
     """A forecast ends at the limit: the model's error there, its common part (a relative part counts)."""
     errors = ErrorModel(absolute={"bearing_friction": 80.0}, relative={"bearing_friction": 0.05},
