@@ -211,6 +211,12 @@ def estimate_errors(diagnoser: Diagnoser, plant: Plant, weight: float, gains: di
             found[name].append((case.faults[name], combined.params[name], first.params[name], len(seeing), unit))
         if progress:
             progress(f"faulty switch {k + 1} of {len(cases)}")
+    return error_model(found)
+
+
+def error_model(found: dict[str, list[tuple[float, float, float, int, float]]]) -> ErrorModel:
+    """The error model of the cases' estimates, per parameter (truth, combined estimate, first throw's estimate,
+    throws combined, nominal over the unit's own torque constant)."""
     errors: dict[str, dict[str, float]] = {key: {} for key in ErrorModel.__dataclass_fields__}
     for name, per_case in found.items():
         if not per_case:

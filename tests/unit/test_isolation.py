@@ -146,3 +146,20 @@ def test_a_missing_bearing_carries_what_the_chairs_may_have_done_since_the_last_
     unseen = CHAIRS_AS_BEARING * DRIFT * 0.02 * np.mean(range(6))  # equal weights: the mean of 0..5 throws on
     assert six.std["bearing_friction"] == pytest.approx(np.hypot(100.0 / np.sqrt(6), unseen))
     assert fresh.combine("missing_bearing", verdicts(6)).std["bearing_friction"] == pytest.approx(100.0 / np.sqrt(6))
+
+
+def test_the_calibration_puts_each_force_back_on_its_units_torque_constant():
+    """A force read through the current reads as its truth times nominal over the unit's own constant: each case is
+    put back on its unit before the envelopes are measured, and the population's spread is added whole. Drive
+    frictions read exactly that way leave no envelope; a bolt (a position) is not read through the current."""
+    from railswitch.services.core.calibration import error_model
+
+    rng = np.random.default_rng(3)
+    truth, unit = rng.uniform(0.03, 0.3, 40), np.exp(rng.normal(0.0, 0.02, 40))
+    errors = error_model({"drive_friction_nm": [(t, t * u, t * u, 6, u) for t, u in zip(truth, unit)],
+                          "left_bolt_offset": [(t, t + 0.001, t + 0.001, 3, u) for t, u in zip(truth, unit)]})
+    for envelope in (errors.absolute, errors.relative, errors.one_absolute, errors.one_relative, errors.bias):
+        assert envelope["drive_friction_nm"] == pytest.approx(0.0, abs=1e-12)
+    assert errors.unit_relative["drive_friction_nm"] == pytest.approx(0.02, rel=0.02)  # the population's
+    assert "left_bolt_offset" not in errors.unit_relative
+    assert errors.bias["left_bolt_offset"] == pytest.approx(0.001)
