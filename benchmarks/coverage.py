@@ -48,7 +48,8 @@ def main() -> None:
     diagnoser.warm_up()
     z: dict[str, list[tuple[float, float]]] = {}
     missed = []
-    for case in fault_cases(args.per_mode, FIRST_SEED + 1000 * args.seed):
+    cases = fault_cases(args.per_mode, FIRST_SEED + 1000 * args.seed)
+    for case in cases:
         switch_id = f"c{case.seed}"
         sim = SwitchSimulation(plant, own=draw_switch(case.seed).plant, noise_rel=NOISE, seed=case.seed)
         source = SimulatedThrows(switch_id, sim)
@@ -72,7 +73,7 @@ def main() -> None:
                   {n: round(v[-1], 2) for n, v in seen.items()} or d.decision, flush=True)
         del diagnoser.switches[switch_id]
     every = [pair for rows in z.values() for pair in rows]
-    emit({"model": args.model, "seed": args.seed, "cases": args.per_mode * 5,
+    emit({"model": args.model, "seed": args.seed, "cases": len(cases),
           **{key: value for key, value in summary(every).items() if key != "cases"},
           "per_parameter": {name: summary(rows) for name, rows in sorted(z.items())},
           "not_decided_as_the_fault": missed, "core": core}, args.json)

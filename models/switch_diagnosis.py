@@ -132,18 +132,21 @@ class ErrorModel:
         return float(np.sqrt(self._variances(name, value)[0]))
 
     def _variances(self, name: str, value: float) -> tuple[float, float]:
-        """(common, per-throw) variances at `value`, from the envelopes over one throw and over `throws[name]`, and
-        the unit's part."""
-        unit = (self.unit_relative.get(name, 0.0) * value) ** 2
+        """(common, per-throw) variances at `value`: the envelopes' and the unit's, which is common."""
+        common, per_throw = self._envelopes(name, value)
+        return common + (self.unit_relative.get(name, 0.0) * value) ** 2, per_throw
+
+    def _envelopes(self, name: str, value: float) -> tuple[float, float]:
+        """(common, per-throw) variances at `value`, from the envelopes over one throw and over `throws[name]`."""
         many = self.absolute.get(name, 0.0) + self.relative.get(name, 0.0) * abs(value)
         measured = self.throws.get(name, 1.0)
         if name not in self.one_absolute or measured <= 1.0:
-            return many**2 + unit, 0.0
+            return many**2, 0.0
         one = self.one_absolute[name] + self.one_relative.get(name, 0.0) * abs(value)
         if one <= many:  # nothing averages out (within the calibration's sampling)
-            return many**2 + unit, 0.0
+            return many**2, 0.0
         per_throw = min(one**2, (one**2 - many**2) * measured / (measured - 1.0))
-        return one**2 - per_throw + unit, per_throw
+        return one**2 - per_throw, per_throw
 
     def slope(self, name: str) -> float:
         """1 + r of estimate = truth(1 + r) + b: what a departure in the truth reads as in the estimate."""
