@@ -22,6 +22,7 @@ SMALLEST_STEP = 1e-6  # in scaled units: a step below this changes nothing a dec
 # ends a fit only when it predicts a tenth of the tolerance: over 1200 such checks of poly and nn fits, the exact
 # Jacobian would then have gone on in 15 (mostly for a decrease below 1e-3 of r'r); at the tolerance itself, in 105.
 BROYDEN_MARGIN = 10.0
+GAUSS_NEWTON = 1e-9  # the damping of the step whose decrease `hopeless` judges (_promised): none to speak of
 
 
 @dataclass
@@ -41,6 +42,7 @@ def levenberg_marquardt(linearise: Linearise, z0: np.ndarray, *, cost: Callable[
                         lower: np.ndarray | None = None, upper: np.ndarray | None = None,
                         scale: np.ndarray | None = None, iterations: int = 50, tolerance: float = 1e-4,
                         keep_going: Callable[[float, float, int], bool] | None = None,
+                        hopeless: Callable[[float, float], bool] | None = None,
                         progress: Callable[[int, float], None] | None = None) -> Solution:
     """Minimise r'r within [lower, upper] from z0.
 
@@ -54,7 +56,9 @@ def levenberg_marquardt(linearise: Linearise, z0: np.ndarray, *, cost: Callable[
     `tolerance` of itself, or the next step is predicted to (by the linearised residual, before the step
     is tried, so a converged fit spends no rollout and no Jacobian on it), when a step is below
     SMALLEST_STEP, when no damped step improves (or the damped step's predicted decrease is below the
-    tolerance), after `iterations`, or when `keep_going(cost, relative decrease, iteration)` says no.
+    tolerance), after `iterations`, or when `keep_going(cost, relative decrease, iteration)` says no, or when
+    `hopeless(cost, decrease)` says yes of the most the linearised residual promises (_promised), asked wherever an
+    exact Jacobian has just been computed (the start included).
     """
     z0 = np.asarray(z0, dtype=float)
     n = z0.size
@@ -80,6 +84,8 @@ def levenberg_marquardt(linearise: Linearise, z0: np.ndarray, *, cost: Callable[
             exact = True
             move, gradient, hessian = _normal_equations(jacobian * scale, r, z, low, high)
         if not move.any():
+            break
+        if hopeless is not None and hopeless(value, _promised(move, gradient, hessian)):
             break
         accepted, trial_linearised, trial_residual = False, None, None
         for attempt in range(MAX_ATTEMPTS):
@@ -133,6 +139,15 @@ def _normal_equations(scaled: np.ndarray, r: np.ndarray, z: np.ndarray, low: np.
     active = ((z <= low) & (gradient > 0)) | ((z >= high) & (gradient < 0))
     move = ~active
     return move, gradient, scaled[:, move].T @ scaled[:, move]
+
+
+def _promised(move: np.ndarray, gradient: np.ndarray, hessian: np.ndarray) -> float:
+    """The decrease of r'r at the minimum of the linearised residual over the free parameters, bounds ignored: g'H^-1 g,
+    the most any step can promise (a direction the residual does not see promises without limit)."""
+    moving = gradient[move]
+    damped = hessian.copy()
+    damped.flat[::len(damped) + 1] += GAUSS_NEWTON * (np.diagonal(hessian) + 1e-12)
+    return float(moving @ np.linalg.solve(damped, moving))
 
 
 def _proposal(z: np.ndarray, move: np.ndarray, gradient: np.ndarray, hessian: np.ndarray, damping: float,

@@ -560,8 +560,7 @@ class SwitchDiagnoser:
         prepared = self.estimator.prepare(m)  # once for the fits and the fitted outputs
         estimates = self.estimator.fit_all(
             prepared, self.specs(throw.direction), weight,
-            joint_when=lambda fits: judge(throw.direction, fits, gains, self.evidence,
-                                          self.negligible(fits))[0] != "nominal",
+            decide=lambda fits: judge(throw.direction, fits, gains, self.evidence, self.negligible(fits))[0],
             warm=None if previous is None else {mode: e.values for mode, e in previous.estimates.items()},
             settled_mse=settled_mse(previous, m))
         mode, found = judge(throw.direction, estimates, gains, self.evidence, self.negligible(estimates))

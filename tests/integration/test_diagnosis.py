@@ -77,6 +77,33 @@ def test_single_fault_is_identified_within_a_tenth_of_a_percent_on_reduced_model
     assert estimates[mode].mse < 1e-3 * estimates["nominal"].mse
 
 
+def test_once_a_fault_is_shown_the_modes_that_cannot_beat_it_stop_and_it_is_fitted_as_before(diagnoser, monkeypatch):
+    """The mode whose start fits best is fitted first; once `decide` shows it, the fault modes fitted after it stop
+    where they cannot beat it (models/estimation.py HOPELESS_MARGIN): fewer Jacobians and rollouts, each still
+    above it, and the shown fault fitted to the bit as when every fit runs to its end."""
+    estimator = diagnoser.estimator
+    m = _twin_throw(estimator, "right_to_left", {"obstacle_friction": 8e4, "obstacle_position": 1.13})
+    specs = diagnoser.switch("twin").specs("right_to_left")
+    calls = []
+    for name in ("linearise", "residuals"):
+        monkeypatch.setattr(estimator, name, lambda *a, _f=getattr(estimator, name), **k: calls.append(1) or _f(*a, **k))
+    whole = estimator.fit_all(m, specs)
+    spent = len(calls)
+    seen = []
+
+    def decide(fits):
+        seen.append(list(fits))
+        return "obstacle" if "obstacle" in fits else "nominal"
+
+    judged = estimator.fit_all(m, specs, decide=decide)
+    assert seen[1] == ["nominal", "obstacle"]
+    assert judged["obstacle"].params == whole["obstacle"].params
+    others = [mode for mode in specs if mode not in ("nominal", "obstacle", "joint")]
+    assert len(calls) - spent < spent
+    assert all(judged[mode].objective > judged["obstacle"].objective for mode in others)
+    assert list(judged) == list(whole)  # in the specs' order, whichever was fitted first
+
+
 @pytest.fixture(scope="module")
 def causal_diagnoser() -> Diagnoser:
     d = Diagnoser("causal")

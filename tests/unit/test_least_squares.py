@@ -116,3 +116,35 @@ def test_a_step_the_bounds_cut_short_is_damped_not_taken_for_convergence():
         solution = levenberg_marquardt(lambda z: (residual(z), a), np.zeros(2), lower=low, upper=high,
                                        tolerance=1e-10, iterations=200, **kind)
         np.testing.assert_allclose(solution.z, best, atol=1e-4)
+
+
+def test_what_a_linear_fit_is_promised_is_what_its_minimum_lowers_it_by_and_a_hopeless_fit_stops_at_its_start():
+    """`hopeless` is asked, where an exact Jacobian has just been made, with r'r and the most the linearised
+    residual promises; on a linear residual that promise is exact: r'r at the start less r'r at the minimum. A fit
+    it calls hopeless stops there: no trial point, no second Jacobian."""
+    best, linearise, _, calls, residual = _linear_problem()
+    start = best + np.array([0.3, -0.2, 0.5])
+    asked = []
+
+    def hopeless(value, promised):
+        asked.append((value, promised))
+        return False
+
+    r0, r1 = residual(start), residual(best)
+    levenberg_marquardt(linearise, start, residual=residual, hopeless=hopeless)
+    np.testing.assert_allclose(asked[0], (r0 @ r0, r0 @ r0 - r1 @ r1), rtol=1e-8)
+    calls.update(linearise=0, residual=0)
+    solution = levenberg_marquardt(linearise, start, residual=residual, hopeless=lambda value, promised: True)
+    assert calls == {"linearise": 1, "cost": 0, "residual": 0}
+    np.testing.assert_array_equal(solution.z, start)
+
+
+def test_a_fit_that_can_still_win_is_not_hopeless():
+    """The same fit judged against a cost its promise reaches runs to the minimum, as without the judge."""
+    best, linearise, _, _, residual = _linear_problem()
+    start = best + np.array([0.3, -0.2, 0.5])
+    r1 = residual(best)
+    judged = levenberg_marquardt(linearise, start, residual=residual,
+                                 hopeless=lambda value, promised: value - promised > r1 @ r1 * (1 + 1e-9))
+    plain = levenberg_marquardt(linearise, start, residual=residual)
+    np.testing.assert_array_equal(judged.z, plain.z)
