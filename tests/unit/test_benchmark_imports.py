@@ -24,3 +24,16 @@ def test_benchmark_imports_resolve(path):
         target = importlib.import_module(module)
         assert hasattr(target, name) or importlib.util.find_spec(f"{module}.{name}") is not None, \
             f"{path.name}: {module} has no {name}"
+
+
+def test_the_papers_estimator_takes_every_argument_the_diagnosis_passes_its_fits():
+    """benchmarks.paper_de overrides ThrowEstimator.fit: a keyword the diagnosis adds to its fits must reach the
+    override too (`beaten` once failed benchmarks.diagnosis only at its last part, the paper's estimator)."""
+    import inspect
+
+    from benchmarks.paper_de import PaperEstimator
+    from railswitch.models.estimation import ThrowEstimator
+
+    ours = inspect.signature(ThrowEstimator.fit).parameters
+    theirs = inspect.signature(PaperEstimator.fit).parameters
+    assert list(theirs) == list(ours)
