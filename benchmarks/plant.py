@@ -31,8 +31,8 @@ from railswitch.services.core.throw_cutter import cut_throws
 
 SIM_SECONDS = 2 * THROW_DURATION_S
 RECORDINGS = Path(__file__).resolve().parents[1] / "recordings"
-SCENARIOS = {"nominal.mcap": {}, "left_bolt.mcap": {"left_bolt_offset": 0.05}, "right_bolt.mcap": {"right_bolt_offset": 0.20},
-             "missing_bearing.mcap": {"bearing_friction": 5000.0},
+SCENARIOS = {"nominal.mcap": {}, "left_bolt.mcap": {"left_bolt_offset": 0.05},
+             "right_bolt.mcap": {"right_bolt_offset": 0.20}, "missing_bearing.mcap": {"bearing_friction": 5000.0},
              "obstacle.mcap": {"obstacle_friction": 1e5, "obstacle_position": 1.1}}
 COMPARED = ("current_a", "velocity_rad_s")
 SOLVER_RMS_FACTOR = 200.0  # as the recordings' check has it

@@ -569,8 +569,8 @@ class ThrowEstimator:
         beats the best mode's fit and that fit joined with each other mode's own parameters as that mode fitted
         them (a small obstacle's position, say, which the joint fit cannot find from no obstacle: started at the
         best mode alone, on population switches with a missing bearing, it crept for 12 iterations on average to
-        a worse end than it reached in 4 from the joined start). `settled_mse` is the nominal fit's MSE on that throw when it was healthy:
-        a throw whose nominal fit is within SETTLED of it is settled (grid_starts).
+        a worse end than it reached in 4 from the joined start). `settled_mse` is the nominal fit's MSE on that
+        throw when it was healthy: a throw whose nominal fit is within SETTLED of it is settled (grid_starts).
 
         Every hypothesis of the throw shares one prior weight, so their objectives compare: the larger of
         the throw's noise (noise_weight) and `model_weight`, the residual variance over the effective number

@@ -86,7 +86,8 @@ def test_once_a_fault_is_shown_the_modes_that_cannot_beat_it_stop_and_it_is_fitt
     specs = diagnoser.switch("twin").specs("right_to_left")
     calls = []
     for name in ("linearise", "residuals"):
-        monkeypatch.setattr(estimator, name, lambda *a, _f=getattr(estimator, name), **k: calls.append(1) or _f(*a, **k))
+        monkeypatch.setattr(estimator, name,
+                            lambda *a, _f=getattr(estimator, name), **k: calls.append(1) or _f(*a, **k))
     whole = estimator.fit_all(m, specs)
     spent = len(calls)
     seen = []
