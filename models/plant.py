@@ -34,12 +34,12 @@ PLANT_VARIABLES: tuple[str, ...] = tuple(PLANT_PARAMETERS)  # a switch's own par
 
 # CVODES's BDF up to order 4, not 5. The rails' bending modes are lightly damped: their eigenvalues lie close to the
 # imaginary axis, where BDF of order 5 is not stable (its stability wedge is 51.8 degrees wide against order 4's 73.4),
-# so at order 5 CVODES keeps failing its error test and cutting the step. Up to order 4 a throw takes a quarter fewer
-# steps (2940 -> 2194 on a right-to-left throw; 356 -> 277 Jacobians), 7 to 14 % less time (paired runs), and its
-# error against a run at 1000 times tighter tolerances stays of the same size (RMS over a throw of the five paper
-# scenarios: current 1e-5 to 2.6e-4 A against 1.4e-5 to 1.7e-4 A, velocity 3e-5 to 1.1e-3 rad/s against 3e-5 to
-# 5.9e-4), both far inside what the recordings' check allows for the solver (tests/integration/test_recordings.py).
-# Order 3 loses accuracy.
+# so at order 5 CVODES keeps failing its error test and cutting the step. Up to order 4, over two throws of each of the
+# paper's five scenarios, CVODES takes 11 % fewer steps (right-to-left throws 21 % fewer, left-to-right as many) and
+# 10 % less time (a whole simulated throw 5 to 14 % in paired runs), and a throw's error against a run at 1000 times
+# tighter tolerances stays of the same size (RMS over a throw of those scenarios: current 1e-5 to 2.6e-4 A against
+# 1.4e-5 to 1.7e-4 A, velocity 3e-5 to 1.1e-3 rad/s against 3e-5 to 5.9e-4), both far inside what the recordings'
+# check allows for the solver (tests/integration/test_recordings.py). Order 3 loses accuracy.
 BDF_MAX_ORDER = 4
 
 SIGNALS = ("current_a", "angle_rad", "velocity_rad_s", "rail_position_m", "rail_velocity_m_s",
