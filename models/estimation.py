@@ -578,7 +578,8 @@ class ThrowEstimator:
         throw = self.prepare(m)
         weight = max(self.noise_weight(throw), model_weight)
         warm = warm or {}
-        start = self._better_start(specs["nominal"], throw, weight, None, warm.get("nominal"))
+        start = (self._lowest_start(specs["nominal"], throw, weight, [{}, warm["nominal"]]) if "nominal" in warm
+                 else None)
         out = {"nominal": self.fit(specs["nominal"], throw, start, prior_weight=weight)}
         # A nuisance the nominal fit had to push far from its prior is the fault's effect absorbed (chairs five
         # times as dry for a missing bearing): the fault modes start it at its prior's edge, since from the
@@ -626,25 +627,11 @@ class ThrowEstimator:
                 estimate = refit
         return estimate
 
-    def _better_start(self, spec: HypothesisSpec, throw: PreparedThrow, weight: float, start: dict[str, float] | None,
-                      warm: dict[str, float] | None) -> dict[str, float] | None:
-        """`warm` where its objective (MSE and priors' charge) is below that of `start` (None: the nominal
-        values); else `start`."""
-        if warm is None:
-            return start
-        prior = Prior.of(spec, weight)
-
-        def objective(start: dict[str, float]) -> float:
-            theta, index = self._start(spec, start)
-            return self.cost(theta, throw) + float(np.sum(prior.residuals(theta[index]) ** 2))
-
-        candidate = _free(spec, warm)
-        return candidate if objective(candidate) < objective(_free(spec, start or {})) else start
-
     def _lowest_start(self, spec: HypothesisSpec, throw: PreparedThrow, weight: float,
                       candidates: list[dict[str, float]]) -> dict[str, float]:
-        """The candidate start of `spec` whose objective (MSE and priors' charge) is lowest: one rollout each (a
-        mapped call costs its capacity's rollouts, SCAN_CAPACITY at least)."""
+        """The candidate start of `spec` whose objective (MSE and priors' charge) is lowest, the first of equals
+        ({}: the nominal values): one rollout each (a mapped call costs its capacity's rollouts, SCAN_CAPACITY at
+        least)."""
         if len(candidates) == 1:
             return candidates[0]
         prior = Prior.of(spec, weight)
