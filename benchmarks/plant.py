@@ -4,8 +4,9 @@ The plant's equations and their Jacobian run as machine code (services/adapters/
 plant through CasADi's virtual machine is timed beside it, with the largest difference between the two.
 
 Its fidelity: the RMS difference over each throw of the example recordings (made by the plant as it was when
-they were recorded) from the same scenario run now, against the bound the recordings' check allows for the
-solver (tests/integration/test_recordings.py: 200 times the relative tolerance times the signal's nominal peak).
+they were recorded) from the faults each recording names run now, against the bound the recordings' check
+allows for the solver (services/core/recording_check.py: 200 times the relative tolerance times the signal's
+nominal peak).
 
 Also times scipy's BDF on the same equations, given the same exact sparse
 Jacobian, to justify CVODES as the plant's integrator.
@@ -24,18 +25,14 @@ from benchmarks.common import emit, parser, pin_to_one_core
 from railswitch.models.faults import fault_vector
 from railswitch.models.plant import Plant
 from railswitch.models.reference import THROW_DURATION_S, throw_reference
-from railswitch.models.switch import SwitchSimulation, nominal_peaks
+from railswitch.models.switch import SwitchSimulation
 from railswitch.services.adapters.compiled import compiled_plant
 from railswitch.services.adapters.recordings import RecordingReader
+from railswitch.services.core.recording_check import SIGNALS, rms_bound, rms_differences
 from railswitch.services.core.throw_cutter import cut_throws
 
 SIM_SECONDS = 2 * THROW_DURATION_S
 RECORDINGS = Path(__file__).resolve().parents[1] / "recordings"
-SCENARIOS = {"nominal.mcap": {}, "left_bolt.mcap": {"left_bolt_offset": 0.05},
-             "right_bolt.mcap": {"right_bolt_offset": 0.20}, "missing_bearing.mcap": {"bearing_friction": 5000.0},
-             "obstacle.mcap": {"obstacle_friction": 1e5, "obstacle_position": 1.1}}
-COMPARED = ("current_a", "velocity_rad_s")
-SOLVER_RMS_FACTOR = 200.0  # as the recordings' check has it
 
 
 def two_throws(plant: Plant) -> tuple[float, np.ndarray, np.ndarray]:
@@ -82,20 +79,15 @@ def scipy_bdf_two_throws(plant: Plant) -> tuple[float, np.ndarray]:
 
 
 def against_recordings(plant: Plant) -> dict:
-    """The largest RMS difference over a throw between each example recording and its scenario run now, per
-    signal, as a share of the bound the recordings' check allows for the solver."""
-    peaks = nominal_peaks(plant)
-    bound = {name: SOLVER_RMS_FACTOR * plant.tolerances["reltol"] * peaks[name] for name in COMPARED}
-    worst = dict.fromkeys(COMPARED, 0.0)
-    for name, faults in SCENARIOS.items():
-        recorded = list(cut_throws(m.message for m in RecordingReader(RECORDINGS / name)))
-        sim = SwitchSimulation(plant, faults=faults)
-        for throw in recorded:
-            fresh = sim.throw().samples.signals
-            for signal in COMPARED:  # a recorded throw holds its start sample too
-                difference = getattr(throw.signals, signal)[1:] - getattr(fresh, signal)
-                worst[signal] = max(worst[signal], float(np.sqrt(np.mean(difference**2))))
-    return {"rms": worst, "bound": bound, "share_of_bound": {s: round(worst[s] / bound[s], 4) for s in COMPARED}}
+    """The largest RMS difference over a throw between each example recording and the faults it names run now,
+    per signal, as a share of the bound the recordings' check allows for the solver."""
+    bound = rms_bound(plant)
+    worst = dict.fromkeys(SIGNALS, 0.0)
+    for path in sorted(RECORDINGS.glob("*.mcap")):
+        recorded = list(cut_throws(m.message for m in RecordingReader(path)))
+        for differences in rms_differences(recorded, plant, recorded[0].truth.params()):
+            worst = {s: max(worst[s], differences[s]) for s in SIGNALS}
+    return {"rms": worst, "bound": bound, "share_of_bound": {s: round(worst[s] / bound[s], 4) for s in SIGNALS}}
 
 
 def main() -> None:

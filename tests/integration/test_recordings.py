@@ -10,14 +10,13 @@ import shutil
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from railswitch.models.motor import MotorParams
 from railswitch.models.plant import Plant, PlantParams
-from railswitch.models.switch import SwitchSimulation, nominal_peaks
 from railswitch.services.adapters.compiled import MachineCode
 from railswitch.services.adapters.recordings import RecordingReader
+from railswitch.services.core.recording_check import SIGNALS, rms_bound, rms_differences
 from railswitch.services.core.throw_cutter import cut_throws
 
 RECORDINGS = Path(__file__).resolve().parents[2] / "recordings"
@@ -30,33 +29,6 @@ SCENARIOS = {
     "missing_bearing.mcap": {"bearing_friction": 5000.0},
     "obstacle.mcap": {"obstacle_friction": 1e5, "obstacle_position": 1.1},
 }
-SIGNALS = ("current_a", "velocity_rad_s")
-# RMS over a throw of the difference between two solutions that both meet the plant's relative
-# tolerance, as a multiple of that tolerance times the signal's nominal peak (6.3 A, 139 rad/s).
-# Doubling the solver's tolerances moves the current's RMS by up to 1.3e-4 of its peak (8e-4 A,
-# the left bolt's second throw, where the blade starts from a gap); a 1 % change of the motor's
-# resistance or Coulomb friction moves it by 7e-4 to 1e-3 of the peak. The bound sits between.
-SOLVER_RMS_FACTOR = 200.0
-
-
-def rms_bound(plant: Plant) -> dict[str, float]:
-    """Largest RMS difference, per signal, that two correct runs of this plant may show."""
-    peaks = nominal_peaks(plant)
-    return {name: SOLVER_RMS_FACTOR * plant.tolerances["reltol"] * peaks[name] for name in SIGNALS}
-
-
-def rms_differences(recorded_throws, plant: Plant, faults: dict) -> list[dict[str, float]]:
-    """Per throw, the RMS difference of each signal between the recording and `plant` under `faults`."""
-    sim = SwitchSimulation(plant, faults=faults)
-    out = []
-    for recorded in recorded_throws:
-        fresh = sim.throw().samples.signals
-        # recorded throws hold the start sample too
-        out.append({name: float(np.sqrt(np.mean((getattr(recorded.signals, name)[1:] - getattr(fresh, name)) ** 2)))
-                    for name in SIGNALS})
-    return out
-
-
 def recorded(name: str):
     path = RECORDINGS / name
     assert path.stat().st_size < 5_000_000
