@@ -145,9 +145,14 @@ def _promised(move: np.ndarray, gradient: np.ndarray, hessian: np.ndarray) -> fl
     """The decrease of r'r at the minimum of the linearised residual over the free parameters, bounds ignored: g'H^-1 g,
     the most any step can promise (a direction the residual does not see promises without limit)."""
     moving = gradient[move]
+    return float(moving @ np.linalg.solve(_damped(hessian, GAUSS_NEWTON), moving))
+
+
+def _damped(hessian: np.ndarray, damping: float) -> np.ndarray:
+    """J'J with Marquardt's damping on its diagonal: damping times the diagonal itself."""
     damped = hessian.copy()
-    damped.flat[::len(damped) + 1] += GAUSS_NEWTON * (np.diagonal(hessian) + 1e-12)
-    return float(moving @ np.linalg.solve(damped, moving))
+    damped.flat[::len(damped) + 1] += damping * (np.diagonal(hessian) + 1e-12)
+    return damped
 
 
 def _proposal(z: np.ndarray, move: np.ndarray, gradient: np.ndarray, hessian: np.ndarray, damping: float,
@@ -155,10 +160,8 @@ def _proposal(z: np.ndarray, move: np.ndarray, gradient: np.ndarray, hessian: np
     """The damped step (scaled units), the trial point it reaches within the bounds, the decrease of r'r that the
     linearised residual predicts there, and whether the bounds cut the step short."""
     step = np.zeros(z.size)
-    damped = hessian.copy()
-    damped.flat[::len(damped) + 1] += damping * (np.diagonal(hessian) + 1e-12)  # Marquardt's damping on the diagonal
     moving = gradient[move]
-    step[move] = np.linalg.solve(damped, -moving)
+    step[move] = np.linalg.solve(_damped(hessian, damping), -moving)
     reached = z + step * scale
     trial = np.minimum(np.maximum(reached, low), high)
     taken = ((trial - z) / scale)[move]  # parameters held at a bound do not move
