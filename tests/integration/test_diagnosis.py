@@ -124,8 +124,9 @@ def test_the_joint_fit_starts_where_the_best_mode_joined_with_another_modes_own_
     assert best == "missing_bearing" and candidates[0] == fits[best].values
     joined = [c for c in candidates[1:] if c["obstacle_friction"] == fits["obstacle"].values["obstacle_friction"]]
     assert joined and joined[0]["bearing_friction"] == fits[best].values["bearing_friction"]
-    chosen = lowest(specs["joint"], estimator.prepare(m), 0.0, candidates)
-    objectives = [estimator.cost(*[estimator._start(specs["joint"], c)[0]], estimator.prepare(m)) for c in candidates]
+    throw = estimator.prepare(m)
+    chosen = lowest(specs["joint"], throw, 0.0, candidates)
+    objectives = [estimator.cost(estimator._start(specs["joint"], c)[0], throw) for c in candidates]
     assert chosen is candidates[int(np.argmin(objectives))]
 
 
