@@ -499,7 +499,8 @@ class SwitchDiagnoser:
         return {
             "nominal": HypothesisSpec("nominal", healthy, held, prior=prior, log_prior=logs),
             bolt: HypothesisSpec(bolt, {bolt_name: fault[bolt_name], **healthy}, held,
-                                 tuple({bolt_name: float(b)} for b in BOLT_GRID), prior, logs, scanned=(bolt_name,)),
+                                 tuple({bolt_name: float(b)} for b in BOLT_GRID), prior, logs,
+                                 settled_grid=({bolt_name: 0.0},), scanned=(bolt_name,)),
             "missing_bearing": HypothesisSpec(
                 "missing_bearing", {**healthy, "bearing_friction": bearing_fault}, held,
                 tuple({"bearing_friction": b0 + f} for f in (500.0, 2e3, 5e3, 1e4)),
