@@ -27,7 +27,8 @@ GAUSS_NEWTON = 1e-9  # the damping of the step whose decrease `hopeless` judges 
 
 @dataclass
 class Solution:
-    """Where the solver stopped: parameters, residual and Jacobian there, r'r, iterations, r'r per iteration."""
+    """Where the solver stopped: parameters, residual and Jacobian there, r'r, iterations, r'r per iteration, and
+    how many exact Jacobians it computed (0: its Jacobian is borrowed slopes, updated)."""
 
     z: np.ndarray
     residual: np.ndarray
@@ -35,6 +36,7 @@ class Solution:
     cost: float
     iterations: int
     history: list[float] = field(default_factory=list)
+    linearised: int = 0
 
 
 def levenberg_marquardt(linearise: Linearise, z0: np.ndarray, *, cost: Callable[[np.ndarray], float] | None = None,
@@ -43,7 +45,8 @@ def levenberg_marquardt(linearise: Linearise, z0: np.ndarray, *, cost: Callable[
                         scale: np.ndarray | None = None, iterations: int = 50, tolerance: float = 1e-4,
                         keep_going: Callable[[float, float, int], bool] | None = None,
                         hopeless: Callable[[float, float], bool] | None = None,
-                        progress: Callable[[int, float], None] | None = None) -> Solution:
+                        progress: Callable[[int, float], None] | None = None,
+                        jacobian: np.ndarray | None = None) -> Solution:
     """Minimise r'r within [lower, upper] from z0.
 
     `cost(z)`, when given, evaluates r'r alone for trial points (cheaper than `linearise`, which
@@ -59,6 +62,12 @@ def levenberg_marquardt(linearise: Linearise, z0: np.ndarray, *, cost: Callable[
     tolerance), after `iterations`, or when `keep_going(cost, relative decrease, iteration)` says no, or when
     `hopeless(cost, decrease)` says yes of the most the linearised residual promises (_promised), asked wherever an
     exact Jacobian has just been computed (the start included).
+
+    `jacobian`, when given (with `residual`), is borrowed for the start: slopes of the same model at z0 that an
+    earlier fit computed. The start costs `residual` instead of `linearise`; the borrowed slopes judge whether the fit
+    has converged there as Broyden's update would, and take the first step, which Broyden's update then corrects.
+    Where that step does not lower r'r at its first try, or the slopes say the fit has not converged but promise
+    too little to step, `linearise` runs at the start and the fit goes on from there as without them.
     """
     z0 = np.asarray(z0, dtype=float)
     n = z0.size
@@ -66,26 +75,34 @@ def levenberg_marquardt(linearise: Linearise, z0: np.ndarray, *, cost: Callable[
     high = np.full(n, np.inf) if upper is None else np.asarray(upper, dtype=float)
     scale = np.ones(n) if scale is None else np.asarray(scale, dtype=float)
     z = np.clip(z0, low, high)
-    r, jacobian = linearise(z)
-    exact = True  # `jacobian` is linearise's at z, not Broyden's update
+    borrowed = jacobian is not None and residual is not None  # the first step is the borrowed slopes'
+    if borrowed:
+        r = residual(z)
+    else:
+        r, jacobian = linearise(z)
+    exact = not borrowed  # `jacobian` is linearise's at z, not Broyden's update or borrowed
+    linearised = int(exact)
     value = float(r @ r)
     if not np.isfinite(value):
         raise ValueError("the starting point gives a non-finite residual; start closer")
     damping, k, history = 1e-4, 0, [value]
-    for k in range(1, iterations + 1):
+    while k < iterations:
+        k += 1
         move, gradient, hessian = _normal_equations(jacobian * scale, r, z, low, high)
         if not exact:  # the update only says whether the fit has converged; else the exact Jacobian goes on
-            if not move.any():
+            if not move.any() and not borrowed:
                 break
-            _, _, predicted, cut = _proposal(z, move, gradient, hessian, damping, scale, low, high)
-            if predicted < tolerance * value / BROYDEN_MARGIN and not cut:
-                break
-            r, jacobian = linearise(z)
-            exact = True
-            move, gradient, hessian = _normal_equations(jacobian * scale, r, z, low, high)
+            if move.any():
+                _, _, predicted, cut = _proposal(z, move, gradient, hessian, damping, scale, low, high)
+                if predicted < tolerance * value / BROYDEN_MARGIN and not cut:
+                    break
+            if not borrowed or not move.any():
+                r, jacobian = linearise(z)
+                exact, borrowed, linearised = True, False, linearised + 1
+                move, gradient, hessian = _normal_equations(jacobian * scale, r, z, low, high)
         if not move.any():
             break
-        if hopeless is not None and hopeless(value, _promised(move, gradient, hessian)):
+        if exact and hopeless is not None and hopeless(value, _promised(move, gradient, hessian)):
             break
         accepted, trial_linearised, trial_residual = False, None, None
         for attempt in range(MAX_ATTEMPTS):
@@ -111,14 +128,22 @@ def levenberg_marquardt(linearise: Linearise, z0: np.ndarray, *, cost: Callable[
             if np.isfinite(trial_value) and trial_value < value:
                 accepted = True
                 break
+            if borrowed:
+                break
             damping *= 10
+        if not accepted and borrowed:  # the borrowed slopes did not take a step: the exact ones go on from the start
+            r, jacobian = linearise(z)
+            exact, borrowed, linearised, k = True, False, linearised + 1, k - 1
+            continue
         if not accepted:
             break
+        borrowed = False
         decrease = (value - trial_value) / max(value, 1e-300)
         if trial_residual is not None:
             jacobian, r, exact = _broyden(jacobian, trial_residual - r, trial - z, scale), trial_residual, False
         else:
             r, jacobian = trial_linearised if trial_linearised is not None else linearise(trial)
+            linearised += 1
         z = trial
         value, damping = float(r @ r), max(damping / 10, 1e-9)
         history.append(value)
@@ -128,7 +153,7 @@ def levenberg_marquardt(linearise: Linearise, z0: np.ndarray, *, cost: Callable[
             break
         if keep_going is not None and not keep_going(value, decrease, k):
             break
-    return Solution(z, r, jacobian, value, k, history)
+    return Solution(z, r, jacobian, value, k, history, linearised)
 
 
 def _normal_equations(scaled: np.ndarray, r: np.ndarray, z: np.ndarray, low: np.ndarray,

@@ -148,3 +148,33 @@ def test_a_fit_that_can_still_win_is_not_hopeless():
                                  hopeless=lambda value, promised: value - promised > r1 @ r1 * (1 + 1e-9))
     plain = levenberg_marquardt(linearise, start, residual=residual)
     np.testing.assert_array_equal(judged.z, plain.z)
+
+
+def test_a_fit_with_borrowed_slopes_steps_without_a_jacobian_and_ends_where_the_exact_one_does():
+    """Slopes of the same model from a point nearby (a previous throw's fit) take the first step: the start costs a
+    residual, not a Jacobian, and the fit ends at the same minimum with one Jacobian fewer."""
+    _, residual, linearise, calls = _curved_problem()
+    for start in (np.array([1.9, 0.72]), np.array([2.05, 0.69])):
+        calls.update(linearise=0, residual=0)
+        exact = levenberg_marquardt(linearise, start, residual=residual, tolerance=1e-6)
+        assert calls["linearise"] == exact.linearised
+        nearby = linearise(np.array([1.95, 0.69]))[1]
+        calls.update(linearise=0, residual=0)
+        borrowed = levenberg_marquardt(linearise, start, residual=residual, tolerance=1e-6, jacobian=nearby)
+        assert calls["linearise"] == borrowed.linearised == exact.linearised - 1
+        np.testing.assert_allclose(borrowed.cost, exact.cost, rtol=1e-8)
+        np.testing.assert_allclose(borrowed.z, exact.z, rtol=1e-6)
+
+
+def test_borrowed_slopes_that_do_not_take_a_step_give_way_to_the_exact_ones_at_the_start():
+    """Slopes pointing the wrong way (another model's) cost one trial residual; the fit then computes the
+    Jacobian at its start and goes on as without them, to the same minimum in as many iterations."""
+    _, residual, linearise, calls = _curved_problem()
+    start = np.array([1.0, 1.5])
+    exact = levenberg_marquardt(linearise, start, residual=residual, tolerance=1e-12)
+    calls.update(linearise=0, residual=0)
+    wrong = -linearise(start)[1]
+    borrowed = levenberg_marquardt(linearise, start, residual=residual, tolerance=1e-12, jacobian=wrong)
+    assert borrowed.history == exact.history and borrowed.iterations == exact.iterations
+    np.testing.assert_array_equal(borrowed.z, exact.z)
+    assert borrowed.linearised == exact.linearised
