@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from railswitch.models.estimation import Measurement
+from railswitch.models.reduced import PARAMETERS
 from railswitch.models.reference import throw_reference
 from railswitch.models.signals import MotorSignals
 from railswitch.models.switch import SwitchSimulation
@@ -231,6 +232,75 @@ def test_a_new_fault_on_a_throw_that_counts_as_settled_is_fitted_as_the_grid_fit
     for name in truth:
         assert settled[mode].params[name] == pytest.approx(gridded[mode].params[name], rel=1e-2), settled[mode]
     assert settled[mode].mse <= 1.01 * gridded[mode].mse
+
+
+def _noisy(m: Measurement, seed: int, share: float = 0.01) -> Measurement:
+    """`m` with white noise of `share` of each signal's range (one draw of the seed)."""
+    rng = np.random.default_rng(seed)
+    signals = [x + share * np.ptp(x) * rng.normal(size=x.size) for x in m.signals.matrix().T]
+    return dataclasses.replace(m, signals=MotorSignals(*signals))
+
+
+@pytest.mark.parametrize("direction", ["left_to_right", "right_to_left"])
+def test_a_throw_whose_fits_start_where_the_previous_ones_ended_borrows_their_slopes(diagnoser, monkeypatch,
+                                                                                      direction):
+    """Two healthy throws (two draws of 1 % noise): on the second, settled, the fault modes' fits start where the
+    first one's ended and take their first step with those fits' slopes. Half the Jacobians or fewer, and every
+    hypothesis fitted as without them, within a hundredth of its standard deviation (its objective within the
+    solver's tolerance); the nominal fit, which every test of a fault reads, as before to the bit. Not settled, no
+    fit borrows."""
+    estimator = diagnoser.estimator
+    specs = diagnoser.switch("twin").specs(direction)
+    healthy = _twin_throw(estimator, direction, {})
+    previous = estimator.fit_all(_noisy(healthy, 1), specs)
+    warm = {mode: e.values for mode, e in previous.items()}
+    m, settled = _noisy(healthy, 2), previous["nominal"].mse
+    counted, linearise = [], estimator.linearise
+    monkeypatch.setattr(estimator, "linearise", lambda *args: counted.append(1) or linearise(*args))
+    own = estimator.fit_all(m, specs, warm=warm, settled_mse=settled)
+    jacobians = len(counted)
+    slopes = {mode: e.slopes for mode, e in previous.items() if e.slopes is not None}
+    assert set(slopes) == set(own) - {"nominal", "joint"}
+    borrowed = estimator.fit_all(m, specs, warm=warm, settled_mse=settled, slopes=slopes)
+    assert 2 * (len(counted) - jacobians) <= jacobians
+    assert borrowed["nominal"].params == own["nominal"].params
+    unsettled = [estimator.fit_all(m, specs, warm=warm, settled_mse=settled / 2, slopes=given) for given in (slopes, None)]
+    assert [e.params for e in unsettled[0].values()] == [e.params for e in unsettled[1].values()]
+    for mode, estimate in own.items():
+        assert borrowed[mode].objective == pytest.approx(estimate.objective, rel=1e-4), mode
+        for name, value in estimate.params.items():
+            assert abs(borrowed[mode].params[name] - value) <= 1e-2 * estimate.std[name], (mode, name)
+
+
+def test_slopes_are_borrowed_only_at_the_point_signals_and_rate_they_were_made_for(diagnoser):
+    """Kept unscaled (single precision), the slopes come back as the Jacobian of the throw they were made on, and of
+    a throw a sample shorter or longer; not at another start, for other signals or another rate, nor once they are
+    SLOPES_AGE throws old."""
+    from railswitch.models.estimation import SLOPES_AGE, Slopes
+
+    estimator = diagnoser.estimator
+    m = _noisy(_twin_throw(estimator, "left_to_right", {}), 1)
+    throw = estimator.prepare(m)
+    free = list(diagnoser.switch("twin").specs("left_to_right")["missing_bearing"].free)
+    index = [PARAMETERS.index(name) for name in free]
+    theta = estimator.reduced.vector()
+    _, jacobian = estimator.linearise(theta, throw, index)
+    slopes = Slopes.of(jacobian, throw, free, theta[index], 0)
+    np.testing.assert_allclose(slopes.scaled(throw, free, theta[index]), jacobian, rtol=1e-5,
+                               atol=1e-6 * np.abs(jacobian).max())
+    for samples in (348, 349):
+        shorter = estimator.prepare(dataclasses.replace(m, t_s=m.t_s[:samples], signals=m.signals[:samples]))
+        assert slopes.scaled(shorter, free, theta[index]).shape == (3 * samples, len(free))
+    longer = Slopes.of(estimator.linearise(theta, shorter, index)[1], shorter, free, theta[index], 0)
+    extended, whole = (j.reshape(3, -1, len(free)) for j in (longer.scaled(throw, free, theta[index]), jacobian))
+    np.testing.assert_allclose(extended[:, :-1], whole[:, :-1], rtol=1e-5, atol=1e-6 * np.abs(whole).max())
+    np.testing.assert_allclose(extended[:, -1], whole[:, -1], atol=1e-2 * np.abs(whole).max())  # its last, again
+    moved = theta[index] * 1.001
+    current = estimator.prepare(dataclasses.replace(m, signals=m.signals.only(("current_a",))))
+    slower = estimator.prepare(dataclasses.replace(m, t_s=m.t_s * 2.0))
+    assert slopes.scaled(throw, free, moved) is None
+    assert slopes.scaled(current, free, theta[index]) is None and slopes.scaled(slower, free, theta[index]) is None
+    assert dataclasses.replace(slopes, age=SLOPES_AGE).scaled(throw, free, theta[index]) is None
 
 
 @pytest.fixture(scope="module")
