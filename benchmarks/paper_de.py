@@ -34,8 +34,9 @@ class PaperEstimator(ThrowEstimator):
         self.evaluations = 0
 
     def fit(self, spec: HypothesisSpec, throw, start: dict[str, float] | None = None, iterations: int = 20,
-            rival: float = np.inf, prior_weight: float = 0.0, beaten: float = np.inf, slopes=None) -> Estimate:
-        """The hypothesis's global minimum by differential evolution (start, rival, beaten and slopes unused: it
+            rival: float = np.inf, prior_weight: float = 0.0, beaten: float = np.inf, slopes=None,
+            keep_slopes: bool = False) -> Estimate:
+        """The hypothesis's global minimum by differential evolution (start, rival, beaten and the slopes unused: it
         needs no start and no Jacobian, and the paper fits every hypothesis to its end)."""
         if not spec.free:
             return super().fit(spec, throw, prior_weight=prior_weight)
