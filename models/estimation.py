@@ -106,6 +106,7 @@ HOPELESS_MARGIN = 5.0
 # ones (10th to 90th percentile, slopes computed one throw before). Slopes last computed this many throws back are not
 # borrowed: the fit computes them again, so Broyden's updates never stand in for them for long.
 SLOPES_AGE = 2
+OUTPUTS_KEPT = 32  # rollouts a prepared throw keeps (a throw's fits take about 12)
 START_SIGMAS = 3.0  # fault modes start the nominal fit's nuisances within this many prior std of their means
 # A bolt drives the blades in one direction only (the left bolt from left to right).
 DRIVING_BOLT = {"left_to_right": "left_bolt", "right_to_left": "right_bolt"}
@@ -342,6 +343,9 @@ class PreparedThrow:
     rows: list[int]  # the measured signals' rows among MEASURED (all three, or the current alone)
     start: np.ndarray  # every output (OUTPUTS) at the start: at rest, no drive force
     period_s: float  # the samples' period
+    # the model's outputs (ThrowEstimator.all_outputs) at the parameter vectors evaluated so far, the latest
+    # OUTPUTS_KEPT: a fit that starts where another candidate was judged, or the decided fit's outputs, are there
+    outputs: dict[tuple[int, bytes], np.ndarray] = field(default_factory=dict, compare=False, repr=False)
 
     @property
     def samples(self) -> int:
@@ -407,11 +411,19 @@ class ThrowEstimator:
         return throw.model.at_samples(y)
 
     def all_outputs(self, theta: np.ndarray, throw: PreparedThrow) -> np.ndarray:
-        """Every output of the model (OUTPUTS), 6 x (1 + model samples), the start first."""
+        """Every output of the model (OUTPUTS), 6 x (1 + model samples), the start first (read only: it is kept with
+        the throw, PreparedThrow.outputs)."""
+        key = (id(self), np.asarray(theta, dtype=float).tobytes())  # a throw another estimator prepared is its own
+        if key in throw.outputs:
+            return throw.outputs[key]
         y = np.empty((len(OUTPUTS), throw.samples))
         y[:, 0], state = throw.start, throw.s0
         for c, refs in enumerate(throw.model.refs):
             state, y[:, 1 + c * CHUNK_SAMPLES:1 + (c + 1) * CHUNK_SAMPLES] = self._chunk.views(state, refs, theta)
+        y.flags.writeable = False
+        if len(throw.outputs) >= OUTPUTS_KEPT:
+            del throw.outputs[next(iter(throw.outputs))]
+        throw.outputs[key] = y
         return y
 
     def _scaled(self, differences: np.ndarray, throw: PreparedThrow) -> np.ndarray:

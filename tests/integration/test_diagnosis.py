@@ -264,7 +264,8 @@ def test_a_throw_whose_fits_start_where_the_previous_ones_ended_borrows_their_sl
     borrowed = estimator.fit_all(m, specs, warm=warm, settled_mse=settled, slopes=slopes)
     assert 2 * (len(counted) - jacobians) <= jacobians
     assert borrowed["nominal"].params == own["nominal"].params
-    unsettled = [estimator.fit_all(m, specs, warm=warm, settled_mse=settled / 2, slopes=given) for given in (slopes, None)]
+    unsettled = [estimator.fit_all(m, specs, warm=warm, settled_mse=settled / 2, slopes=given)
+                 for given in (slopes, None)]
     assert [e.params for e in unsettled[0].values()] == [e.params for e in unsettled[1].values()]
     for mode, estimate in own.items():
         assert borrowed[mode].objective == pytest.approx(estimate.objective, rel=1e-4), mode
@@ -301,6 +302,28 @@ def test_slopes_are_borrowed_only_at_the_point_signals_and_rate_they_were_made_f
     assert slopes.scaled(throw, free, moved) is None
     assert slopes.scaled(current, free, theta[index]) is None and slopes.scaled(slower, free, theta[index]) is None
     assert dataclasses.replace(slopes, age=SLOPES_AGE).scaled(throw, free, theta[index]) is None
+
+
+def test_a_throw_keeps_the_rollouts_its_fits_made_and_no_other_estimators(diagnoser, monkeypatch):
+    """The model at a parameter vector already evaluated on the throw (a fit that starts where its candidate was
+    judged, the decided fit's outputs) is not rolled out again; kept read only, and only for the estimator that made
+    it (another one, here the same model uncompiled, rolls out its own)."""
+    from railswitch.models.estimation import ThrowEstimator
+
+    estimator = diagnoser.estimator
+    throw = estimator.prepare(_noisy(_twin_throw(estimator, "left_to_right", {}), 1))
+    theta = estimator.reduced.vector({"bearing_friction": 1500.0})
+    first = estimator.all_outputs(theta, throw)
+    calls, chunk = [], estimator._chunk
+    monkeypatch.setattr(chunk, "views", lambda *args, views=chunk.views: calls.append(1) or views(*args))
+    assert estimator.all_outputs(theta.copy(), throw) is first and not calls
+    r = estimator.residuals(theta, throw)
+    assert estimator.cost(theta, throw) == float(r @ r)
+    assert not calls and not first.flags.writeable
+    estimator.all_outputs(estimator.reduced.vector(), throw)
+    assert calls
+    other = ThrowEstimator(estimator.reduced, directions=(4,))
+    assert other.all_outputs(theta, throw) is not first
 
 
 @pytest.fixture(scope="module")
