@@ -260,7 +260,7 @@ class Slopes:
     def of(cls, jacobian: np.ndarray, throw: PreparedThrow, free: list[str], z: np.ndarray, age: int) -> Slopes:
         """From the data rows of a fit's Jacobian (scaled as ThrowEstimator._scaled scales the residual)."""
         signals, samples = throw.measured.shape[1], throw.measured.shape[0]
-        derivative = jacobian.reshape(signals, samples, len(free)) * (np.sqrt(jacobian.shape[0]) /
+        derivative = jacobian.reshape(signals, samples, len(free)) * (np.sqrt(throw.measured.size) /
                                                                       throw.inverse_scale[:, None, None])
         largest = np.maximum(np.max(np.abs(derivative), axis=1, keepdims=True), 1e-300)
         return cls(tuple(free), z.copy(), tuple(throw.rows), throw.period_s, (derivative / largest).astype(np.float16),
@@ -278,7 +278,7 @@ class Slopes:
         if samples > derivative.shape[1]:
             derivative = np.pad(derivative, ((0, 0), (0, samples - derivative.shape[1]), (0, 0)), mode="edge")
         rows = derivative * (self.largest * throw.inverse_scale[:, None, None] / np.sqrt(throw.measured.size))
-        return rows.reshape(-1, len(free)).astype(float)
+        return rows.reshape(-1, len(free))  # float16 times float64: float64
 
 
 @dataclass(frozen=True)

@@ -564,7 +564,8 @@ class SwitchDiagnoser:
             decide=lambda fits: judge(throw.direction, fits, gains, self.evidence, self.negligible(fits))[0],
             warm=None if previous is None else {mode: e.values for mode, e in previous.estimates.items()},
             settled_mse=settled_mse(previous, m),
-            slopes=None if previous is None else {mode: e.slopes for mode, e in previous.estimates.items() if e.slopes})
+            slopes=None if previous is None else {mode: e.slopes for mode, e in previous.estimates.items()
+                                                if e.slopes is not None})
         mode, found = judge(throw.direction, estimates, gains, self.evidence, self.negligible(estimates))
         for name, seen in found.items():
             self.evidence[name] = [seen, *self.evidence.get(name, [])][:EVIDENCE_THROWS]
