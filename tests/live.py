@@ -78,6 +78,7 @@ class ThrowWatcher:
         self.starts: list[int] = []  # throw indices, in the order their start events arrived
         self.started: list[tuple[str, int]] = []  # the same with their switch
         self.last_sample_ns = 0
+        self.samples = 0  # motor samples seen
         self._subscribers = [session.declare_subscriber("railswitch/*/throw", self._throw),
                              session.declare_subscriber("railswitch/*/motor", self._motor)]
 
@@ -89,6 +90,7 @@ class ThrowWatcher:
 
     def _motor(self, sample: zenoh.Sample) -> None:
         self.last_sample_ns = max(self.last_sample_ns, decode(MotorSample, sample.payload.to_bytes()).t_ns)
+        self.samples += 1
 
 
 class ServiceWatch:

@@ -167,7 +167,8 @@ def test_a_killed_recorders_file_is_recovered_with_at_most_a_few_seconds_lost(tm
         recorder = services.start("recorder", "--connect", endpoint, "--out", str(recording))
         wait_ready(session, services, recorder=1)
         services.start("simulator", "--connect", endpoint, "--switch-id", "sw1", "--throws", "3")
-        time.sleep(10.0)
+        # 10 s of samples on the bus (at 50 Hz, real time), however long the simulator took to start
+        wait_for(lambda: watcher.samples >= 10 * 50, 120, "10 s of samples")
         services.stop(recorder, signal.SIGKILL)
         killed_at_ns = watcher.last_sample_ns
     assert load_recording(recording).damage is not None  # no summary: the file was never finished
