@@ -32,7 +32,7 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import casadi as ca
 import numpy as np
@@ -302,6 +302,11 @@ class Estimate:
     def prior_charge(self) -> float:
         """What the priors charge this fit, in units of (value - mean)^2 / std^2 summed (0 without priors)."""
         return (self.objective - self.mse) / self.prior_weight if self.prior_weight > 0 else 0.0
+
+    def kept(self, slopes: bool) -> Estimate:
+        """The estimate as a later throw reads it: without its residual (an empty one with a column per signal
+        measured) and, unless `slopes`, without its slopes."""
+        return replace(self, residual=np.empty((0, self.residual.shape[1])), slopes=self.slopes if slopes else None)
 
 
 @dataclass(frozen=True)

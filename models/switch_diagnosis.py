@@ -36,7 +36,8 @@ variances, with the model's error (which does not average out) added once.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections import deque
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -57,6 +58,11 @@ GAP_TOLERANCE = 0.25  # of a sample period, for "the samples are evenly spaced"
 # ends; it is cut short only when it ends while the motor is still asked to turn (or, where measured, still
 # turns) at more than this share of its top speed.
 STILL_SHARE = 0.1
+# The throws a decided fault's size is combined over: those since it appeared, at most the latest TRACKED_THROWS (ten
+# days of a switch's throws). Each throw of a fault left in place adds to its switch's memory (about 1 kB as
+# ThrowVerdict.tracked keeps it; kept whole, 117 kB and without end); combined over so many, the model's error, whose
+# common part does not average out (ErrorModel.std), is what the combined size's std holds.
+TRACKED_THROWS = 1000
 MAX_THROW_S = 30.0  # longer than any point machine's throw, stalled or not
 COMMISSIONING_THROWS = 4  # healthy throws each way that make a switch's baseline (at most 6 are asked for)
 # Fault-like parameters with a healthy level per switch: the extra rail damping of the bearing port and
@@ -356,6 +362,20 @@ class ThrowVerdict:
     def strength(self) -> float:
         return self.evidence[self.mode].ratio if self.mode in self.evidence else 0.0
 
+    def kept(self) -> ThrowVerdict:
+        """The verdict as its switch keeps it for the next throws (their warm starts, the slopes they borrow, what
+        settles them, evidence, reports): without the fits' residuals and the fitted outputs, which no later throw
+        reads, and with slopes only after a throw decided healthy, the only ones a later throw borrows (a settled
+        throw follows a healthy one: ThrowEstimator.fit_all). Kept whole, a verdict held 115 kB."""
+        return replace(self, estimates={mode: e.kept(slopes=self.mode == "nominal") for mode, e in self.estimates.items()},
+                       fitted={})
+
+    def tracked(self) -> ThrowVerdict:
+        """What combining the decided fault over its throws reads of this one (SwitchDiagnoser.combine): its index,
+        direction, mode and that mode's report."""
+        return replace(self, evidence={}, estimates={}, fitted={},
+                       reported={mode: r for mode, r in self.reported.items() if mode == self.mode})
+
 
 @dataclass(frozen=True)
 class Combined:
@@ -399,7 +419,7 @@ class SwitchDiagnoser:
         self.health.model_error = {name: self.errors.common(name, self.health.limits[name]) for name in TRACKED}
         self.latest: dict[str, ThrowVerdict] = {}
         self.rail_m: float | None = None  # blades' position after the last diagnosed throw
-        self.track: list[ThrowVerdict] = []  # throws since the decided fault appeared
+        self.track: deque[ThrowVerdict] = deque(maxlen=TRACKED_THROWS)  # throws since the decided fault appeared
         self.evidence: dict[str, list[Evidence]] = {}  # per mode, from the latest throws that saw it, latest first
         self.drive = estimator.reduced.params.plant.drive
 
@@ -575,7 +595,7 @@ class SwitchDiagnoser:
         reported[hidden.mode] = hidden
         verdict = ThrowVerdict(throw.index, throw.direction, mode, found, estimates, reported,
                                float(fitted["rail_position_m"][-1]), fitted, provisional)
-        self.latest[throw.direction] = verdict
+        self.latest[throw.direction] = verdict.kept()
         self.rail_m = verdict.end_rail_m
         if mode == "nominal":
             nominal = estimates["nominal"]
@@ -658,7 +678,7 @@ class SwitchDiagnoser:
             return None
         if self.track and self.track[0].mode != decision and not any(v.mode == decision for v in self.track):
             self.track.clear()
-        self.track.append(verdict)
+        self.track.append(verdict.tracked())
         seeing = [v for v in self.track if observable(decision, v.direction) and v.mode == decision]
         if not seeing:
             return None

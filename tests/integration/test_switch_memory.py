@@ -1,0 +1,60 @@
+"""What a diagnoser keeps of a switch between throws (issue 16, a fleet of tens of thousands of switches per core): only
+what later throws read, and a bounded amount however long a fault stays in place."""
+import gc
+import tracemalloc
+
+import numpy as np
+
+from railswitch.models import switch_diagnosis
+from railswitch.models.switch import SwitchSimulation
+from railswitch.models.switch_diagnosis import COMMISSIONING_THROWS
+from railswitch.services.core.switch_messages import SimulatedThrows
+
+
+def _arrays(verdict) -> dict[str, int]:
+    """Bytes of the arrays a kept verdict holds: residuals, fitted outputs, slopes."""
+    sizes = {"residual": 0, "fitted": 0, "slopes": 0}
+    for estimate in verdict.estimates.values():
+        sizes["residual"] += estimate.residual.nbytes
+        if estimate.slopes is not None:
+            sizes["slopes"] += estimate.slopes.derivative.nbytes
+    sizes["fitted"] = sum(np.asarray(values).nbytes for values in verdict.fitted.values())
+    return sizes
+
+
+def test_a_switch_keeps_only_what_its_next_throws_read_and_a_persisting_fault_adds_little(diagnoser, plant,
+                                                                                         monkeypatch):
+    monkeypatch.setattr(switch_diagnosis, "TRACKED_THROWS", 4)  # read when the switch is first met
+    sim = SwitchSimulation(plant, noise_rel=0.01, seed=11)
+    source = SimulatedThrows("kept", sim)
+    for _ in range(2 * COMMISSIONING_THROWS):
+        outcome = diagnoser.diagnose(source.next())
+    switch = diagnoser.switches["kept"]
+    assert outcome.diagnosis.decision == "nominal"
+    for verdict in switch.latest.values():  # healthy: its slopes stay for the next throw to borrow, nothing else
+        assert _arrays(verdict)["residual"] == _arrays(verdict)["fitted"] == 0
+        assert _arrays(verdict)["slopes"] > 0
+        assert verdict.estimates["nominal"].residual.shape[1] == 3  # the signals measured, for the next throw
+    assert outcome.verdict.fitted and outcome.verdict.estimates["nominal"].residual.size > 0  # the caller's is whole
+
+    sim.set_faults({"left_bolt_offset": 0.04})
+    used = []
+    for k in range(8):
+        diagnosed = diagnoser.diagnose(source.next())
+        if k == 2:
+            gc.collect()
+            tracemalloc.start()
+        elif k > 2:
+            gc.collect()
+            used.append(tracemalloc.get_traced_memory()[0])
+    tracemalloc.stop()
+    assert diagnosed.diagnosis.decision == "left_bolt"
+    assert switch.latest["left_to_right"].mode == "left_bolt"  # the other direction cannot see it: healthy
+    for verdict in switch.latest.values():  # a faulty throw's slopes: no later throw borrows them
+        assert _arrays(verdict)["residual"] == _arrays(verdict)["fitted"] == 0
+        assert (_arrays(verdict)["slopes"] > 0) == (verdict.mode == "nominal"), verdict.mode
+    # the fault's throws are combined over the latest TRACKED_THROWS, each kept as its decided mode's report
+    assert len(switch.track) == 4 and all(set(v.reported) == {v.mode} and not v.estimates for v in switch.track)
+    assert diagnosed.diagnosis.estimate.since_throw == switch.track[0].index
+    # a throw kept whole held 117 kB; as kept, some 1 kB
+    assert (used[-1] - used[0]) / (len(used) - 1) < 20_000, np.diff(used)
