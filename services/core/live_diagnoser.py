@@ -22,7 +22,6 @@ from railswitch.schemas import (
     SwitchState,
     ThrowEvent,
     ThrowRecord,
-    encode,
     key_expr,
 )
 from railswitch.services.adapters.zenoh_bus import Publishers, Received
@@ -229,8 +228,8 @@ class LiveDiagnoser:
     def state_replies(self) -> list[tuple[str, bytes]]:
         """The cached states of the switches this one owns, as (key, payload): its answer to a diagnoser starting
         up (services/commands/diagnoser.py)."""
-        return [(key_expr(s.switch_id, "state"), encode(s)) for s in self.states.values()
-                if self.ownership.is_mine(s.switch_id)]
+        return [(key_expr(switch_id, "state"), self.states.payload(switch_id)) for switch_id in self.states.switch_ids()
+                if self.ownership.is_mine(switch_id)]
 
     def counters(self) -> dict[str, int]:
         owned = sum(1 for switch_id in self._seen if self.ownership.is_mine(switch_id))
