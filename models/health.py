@@ -50,6 +50,7 @@ repaired one).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 from scipy import special
@@ -298,6 +299,14 @@ class Health:
     parameters: dict[str, ParameterHealth]
 
 
+@lru_cache(maxsize=8)
+def standard_draws(seed: int) -> np.ndarray:
+    """DRAWS standard normal pairs (read only): one array for every switch's tracker of a seed, not 6.4 kB each."""
+    draws = np.random.default_rng(seed).standard_normal((DRAWS, 2))
+    draws.flags.writeable = False
+    return draws
+
+
 class HealthTracker:
     """One switch's parameters over its throws; feed every diagnosed throw."""
 
@@ -305,7 +314,7 @@ class HealthTracker:
                  seed: int = 0):
         self.limits = {**DEFAULT_LIMITS, **(limits or {})}
         self.model_error = model_error or {}
-        self._normal = np.random.default_rng(seed).standard_normal((DRAWS, 2))  # reused: the same draws each throw
+        self._normal = standard_draws(seed)  # reused: the same draws each throw
         self.reset()
 
     def reset(self) -> None:
