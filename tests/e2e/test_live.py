@@ -183,7 +183,8 @@ def test_ctrl_c_stops_the_demos_processes_and_still_finishes_its_recording(tmp_p
     try:
         # Interrupted once its first throw was diagnosed (a throw's samples went through the bus and the recorder):
         # a fixed wait after the recorder started left it empty on a loaded machine, the simulator still starting.
-        wait_for(lambda: any(" throw 0 " in line for line in lines), 300, "the demo's first diagnosis")
+        wait_for(lambda: any(" throw 0 " in line for line in lines), 300, "the demo's first diagnosis",
+                 abort=lambda: None if demo.poll() is None else f"the demo exited first: {''.join(lines)[-2000:]}")
         demo.send_signal(signal.SIGINT)
         demo.wait(timeout=120)
         reader.join(timeout=30)
