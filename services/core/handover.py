@@ -100,8 +100,12 @@ class StateCache:
         return True
 
     def get(self, switch_id: str) -> SwitchState | None:
+        return decode(SwitchState, self.payload(switch_id)) if switch_id in self._states else None
+
+    def t_ns(self, switch_id: str) -> int | None:
+        """The end of the throw the kept state of a switch follows."""
         kept = self._states.get(switch_id)
-        return None if kept is None else decode(SwitchState, self.payload(switch_id))
+        return None if kept is None else kept[0]
 
     def payload(self, switch_id: str) -> bytes:
         """The kept state of a switch as it goes on the bus."""

@@ -195,11 +195,14 @@ class LiveDiagnoser:
 
     def _state_seen(self, state: SwitchState) -> None:
         """Cache it; a switch held here that another diagnoser has since diagnosed later is dropped, to resume from
-        that state at its next throw."""
+        that state at its next throw. This one's own state after its latest throw, back from the bus (a session hears
+        its own publications), was cached when published: not encoded and compressed again."""
+        latest = self._latest.get(state.switch_id)
+        if latest is not None and state.t_ns == latest[1] == self.states.t_ns(state.switch_id):
+            return
         if not self.states.put(state):
             return
         self._seen.add(state.switch_id)
-        latest = self._latest.get(state.switch_id)
         if state.switch_id in self.diagnoser.switches and (latest is None or state.t_ns > latest[1]):
             del self.diagnoser.switches[state.switch_id]
 

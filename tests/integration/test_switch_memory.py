@@ -58,3 +58,27 @@ def test_a_switch_keeps_only_what_its_next_throws_read_and_a_persisting_fault_ad
     assert diagnosed.diagnosis.estimate.since_throw == switch.track[0].index
     # a throw kept whole held 117 kB; as kept, some 1 kB
     assert (used[-1] - used[0]) / (len(used) - 1) < 20_000, np.diff(used)
+
+
+def test_a_diagnosers_own_state_back_from_the_bus_is_not_cached_again_and_a_later_ones_is(diagnoser, plant,
+                                                                                           monkeypatch):
+    from railswitch.schemas import SwitchState, encode, key_expr
+    from railswitch.services.adapters.zenoh_bus import Received
+    from railswitch.services.core import handover
+    from railswitch.services.core.live_diagnoser import LiveDiagnoser
+    from railswitch.services.core.records import record_of_throw
+
+    compressed, compress = [], handover.zlib.compress
+    monkeypatch.setattr(handover.zlib, "compress", lambda data, level: compressed.append(data) or compress(data, level))
+    live = LiveDiagnoser(diagnoser, publishers=None)
+    source = SimulatedThrows("echo", SwitchSimulation(plant, noise_rel=0.01, seed=12))
+    live.handle(Received(key_expr("echo", "record"), encode(record_of_throw(source.next())), 0.0))
+    assert live.diagnosed == 1 and len(compressed) == 1  # cached as published
+    own = live.states.get("echo")
+    live.handle(Received(key_expr("echo", "state"), encode(own), 0.0))  # the bus hands it back
+    assert len(compressed) == 1 and live.states.get("echo") == own
+    later = SwitchState(switch_id="echo", model=own.model, throw_index=own.throw_index + 1, t_ns=own.t_ns + 1,
+                        state=own.state)  # another diagnoser's, after a later throw
+    live.handle(Received(key_expr("echo", "state"), encode(later), 0.0))
+    assert len(compressed) == 2 and live.states.get("echo") == later
+    assert "echo" not in diagnoser.switches  # resumed from the later state at its next throw, as before
