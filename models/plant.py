@@ -49,6 +49,13 @@ BDF_MAX_ORDER = 4
 # population switches), each pair of throws run alternately: CasADi's sparse QR for csparse (7 % faster on the nominal
 # pair, only because rounding moved its steps from 4385 to 3494; over the ten, 1.315 s against 1.320 s and 1.398 s
 # against 1.374 s in two runs), tanh written with exp (4 % faster, the current moved by up to 5e-4 A).
+# CasADi stops CVODES wherever the control changes from one sample to the next (the integrator takes it as piecewise
+# constant), which costs a shortened step and often a fresh Jacobian and factorisation. The reference reaches the plant
+# as the line of each piece of its profile (Reference.linear_pieces), the same two numbers over a piece to the last bit;
+# as chords through the samples, which differ in their last bits, every sample of the ramps (20 each) was a stop. Over
+# the ten scenarios above, two throws each: 9.5 % fewer steps (35 550 against 39 288), 15 % fewer Jacobians, 6.6 % less
+# time (paired, three passes; 5 to 19 % in other runs); the error against a run at 1e-10 tolerances the same (RMS
+# current over a throw at most 8.8e-5 A against 9.2e-5, velocity 1.2e-4 rad/s against 1.6e-4).
 
 SIGNALS = ("current_a", "angle_rad", "velocity_rad_s", "rail_position_m", "rail_velocity_m_s",
            "rail_acceleration_m_s2", "drive_force_n", "rod_position_m")
@@ -213,9 +220,7 @@ class Plant:
         t = dt * np.arange(1, steps + 1)
         control = np.zeros((3, steps))
         if reference is not None:
-            start, end = reference(t - dt), reference(t)
-            control[1] = (end - start) / dt
-            control[0] = start - control[1] * (t - dt)
+            control[0], control[1] = reference.linear_pieces(dt * np.arange(steps), t)
             control[2] = 1.0
         theta, own = fault_vector(faults), self.variables(plant)
         integrator, outputs = self._evaluators(dt, steps)

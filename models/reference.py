@@ -22,6 +22,23 @@ class Reference:
     def __call__(self, t_s) -> np.ndarray:
         return np.interp(t_s, self.t_s, self.velocity_rad_s)
 
+    def linear_pieces(self, start_s: np.ndarray, end_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The profile on each interval from `start_s` to `end_s` as intercept + slope * t: the line of the piece
+        that holds the whole interval, or the chord where an interval spans a breakpoint. Intervals of one piece
+        get the same two numbers to the last bit (the plant's integrator stops only where they change)."""
+        start_s, end_s = np.asarray(start_s, dtype=float), np.asarray(end_s, dtype=float)
+        t, v = self.t_s, self.velocity_rad_s
+        first = self(start_s)
+        slope = (self(end_s) - first) / (end_s - start_s)  # outside the breakpoints exactly 0: the held value
+        intercept = first - slope * start_s
+        piece = np.searchsorted(t, start_s, side="right") - 1  # the piece that starts at or before the interval
+        within = (piece >= 0) & (piece < len(t) - 1)
+        within[within] = end_s[within] <= t[piece[within] + 1]
+        k = piece[within]
+        slope[within] = (v[k + 1] - v[k]) / (t[k + 1] - t[k])
+        intercept[within] = v[k] - slope[within] * t[k]
+        return intercept, slope
+
     def angle_rad(self) -> float:
         """Motor angle the profile asks for (its integral)."""
         return float(np.trapezoid(self.velocity_rad_s, self.t_s))

@@ -199,9 +199,27 @@ def test_a_run_keeps_its_numbers_when_the_plant_runs_again_and_they_are_those_of
     t = dt * np.arange(1, steps + 1)
     reference = throw_reference("left_to_right")
     control = np.zeros((3, steps))
-    control[1] = (reference(t) - reference(t - dt)) / dt
-    control[0] = reference(t - dt) - control[1] * (t - dt)
+    control[0], control[1] = reference.linear_pieces(dt * np.arange(steps), t)
     control[2] = 1.0
     p = np.concatenate([fault_vector(), plant.variables()])
     expected = np.asarray(plant._integrator(dt, steps)(x0=state, p=p, u=control)["xf"])
     np.testing.assert_array_equal(first.states, expected)
+
+
+@pytest.mark.parametrize("stroke_s", [6.4, 6.31])
+def test_the_reference_reaches_the_plant_as_its_own_lines_one_pair_of_numbers_a_piece(stroke_s):
+    """CVODES stops wherever the plant's control changes. Over the samples of one piece of the profile the control is
+    that piece's line to the last bit, so the integrator stops at the profile's breakpoints, not at every sample of a
+    ramp (chords through the samples differ in their last bits); an interval that spans a breakpoint gets the chord."""
+    from railswitch.models.reference import throw_reference
+
+    reference = throw_reference("left_to_right", stroke_s=stroke_s)
+    dt, steps = 1.0 / 50.0, 350
+    start, end = dt * np.arange(steps), dt * np.arange(1, steps + 1)
+    intercept, slope = reference.linear_pieces(start, end)
+    spans = np.any((start[:, None] < reference.t_s) & (reference.t_s < end[:, None]), axis=1)
+    middle = 0.5 * (start + end)
+    for t, where in ((start, ...), (end, ...), (middle, ~spans)):
+        np.testing.assert_allclose((intercept + slope * t)[where], reference(t)[where], rtol=0, atol=1e-9)
+    changes = 1 + np.count_nonzero((np.diff(intercept) != 0) | (np.diff(slope) != 0))
+    assert changes == len(reference.t_s) - 1 + np.count_nonzero(spans)  # the pieces (the last holds), the chords
