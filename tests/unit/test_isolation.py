@@ -163,3 +163,27 @@ def test_the_calibration_puts_each_force_back_on_its_units_torque_constant():
     assert errors.unit_relative["drive_friction_nm"] == pytest.approx(0.02, rel=0.02)  # the population's
     assert "left_bolt_offset" not in errors.unit_relative
     assert errors.bias["left_bolt_offset"] == pytest.approx(0.001)
+
+
+def test_a_baselines_summaries_follow_every_healthy_throw_added_and_its_copy_from_a_dict():
+    """Level, gains and model weight are kept between throws (they are read some 24 times a throw); each throw added
+    in commissioning changes them as if they were computed afresh, and a baseline read back from its dict has its
+    own."""
+    from railswitch.models.reference import DIRECTIONS
+    from railswitch.models.switch_diagnosis import Baseline
+
+    baseline, rng = Baseline(), np.random.default_rng(5)
+    for k in range(baseline.needed):
+        for direction in DIRECTIONS:
+            baseline.add(direction, {"bearing_friction": float(rng.normal(0.0, 300.0))},
+                         {"left_bolt": float(rng.uniform())}, float(rng.uniform(1e-6, 1e-5)))
+            added = baseline.healthy[direction]
+            values = [h["levels"]["bearing_friction"] for h in added]
+            expected = (np.mean(values), np.std(values, ddof=1) if len(values) > 1 else 0.0)
+            assert baseline.level(direction, "bearing_friction") == pytest.approx(expected, rel=1e-12, abs=1e-12)
+            assert baseline.gains(direction)["left_bolt"] == max(h["gains"]["left_bolt"] for h in added)
+            assert baseline.model_weight() == np.median([h["model_weight"] for d in DIRECTIONS
+                                                         for h in baseline.healthy[d]])
+    copy = Baseline.from_dict(baseline.to_dict())
+    assert copy.level(DIRECTIONS[0], "bearing_friction") == baseline.level(DIRECTIONS[0], "bearing_friction")
+    assert "_summaries" not in baseline.to_dict()
