@@ -24,7 +24,9 @@ real switch throws about 100 times a day):
    and per CPU second they spend (decoding everything, holding others' throws, diagnosing their own).
    `switches_per_core`, the fleet one core serves at 100 throws a day, is the service phase's; the
    commissioning phase's is reported beside it (`--commissioning 0` times a new fleet's first throws
-   alone, as the capacity run did before it had phases).
+   alone, as the capacity run did before it had phases). The service phase is 16 throws a switch, some
+   30 s: with 4 (8 s) two runs of the same code gave 24 756 and 30 802 switches per core, as this
+   machine's speed drifts from one minute to the next; with 16, two gave 25 877 and 25 477.
 2. Paced: `--fleet` switches sped up to `--load` times the measured capacity, for `--paced-s`
    seconds: `lost` (throws without a diagnosis) and the latency from a record's arrival to its
    diagnosis's. With `--elastic` a third diagnoser joins mid-run and one of the first two is then
@@ -166,7 +168,7 @@ def main() -> None:
     p.add_argument("--burst", type=int, default=100, help="with --records: switches of the capacity run")
     p.add_argument("--commissioning", type=int, default=2 * COMMISSIONING_THROWS,
                    help="with --records: each capacity switch's commissioning throws, timed apart")
-    p.add_argument("--burst-throws", type=int, default=4,
+    p.add_argument("--burst-throws", type=int, default=16,
                    help="with --records: throws per switch in service in the capacity run")
     p.add_argument("--fleet", type=int, default=2000, help="with --records: switches of the paced run")
     p.add_argument("--load", type=float, default=0.4, help="with --records: paced load, fraction of capacity")
