@@ -49,13 +49,16 @@ BDF_MAX_ORDER = 4
 # population switches), each pair of throws run alternately: CasADi's sparse QR for csparse (7 % faster on the nominal
 # pair, only because rounding moved its steps from 4385 to 3494; over the ten, 1.315 s against 1.320 s and 1.398 s
 # against 1.374 s in two runs), tanh written with exp (4 % faster, the current moved by up to 5e-4 A).
-# CasADi stops CVODES wherever the control changes from one sample to the next (the integrator takes it as piecewise
-# constant), which costs a shortened step and often a fresh Jacobian and factorisation. The reference reaches the plant
-# as the line of each piece of its profile (Reference.linear_pieces), the same two numbers over a piece to the last bit;
-# as chords through the samples, which differ in their last bits, every sample of the ramps (20 each) was a stop. Over
-# the ten scenarios above, two throws each: 9.5 % fewer steps (35 550 against 39 288), 15 % fewer Jacobians, 6.6 % less
-# time (paired, three passes; 5 to 19 % in other runs); the error against a run at 1e-10 tolerances the same (RMS
-# current over a throw at most 8.8e-5 A against 9.2e-5, velocity 1.2e-4 rad/s against 1.6e-4).
+# CasADi stops CVODES wherever the control changes from one sample to the next (it takes the control as piecewise
+# constant): a step cut short, and more often a fresh Jacobian and factorisation. The reference reaches the plant as the
+# line of each piece of its profile (Reference.linear_pieces), the same two numbers over a piece to the last bit; as
+# chords through the samples, which differ in their last bits, every sample of the ramps (20 each) was a stop. Over 168
+# population switches (five runs; faults as benchmarks.diagnosis draws them; two throws each, the two ways alternating
+# in one process): 0.5 to 3 % fewer steps, 14 to 15 % fewer Jacobians (two runs), 4.5 to 10 % less time (median 8 %). A
+# pair of throws' steps move by up to a fifth either way with any rounding (0.76 to 1.31 of each other here), so one
+# pair says little: the nominal pair of benchmarks.plant went from 4385 steps, a slow draw, to 3242; a typical pair
+# takes about 3450. The error against a run at 1e-10 tolerances is the same (ten scenarios: RMS current over a throw at
+# most 8.8e-5 A against 9.2e-5, velocity 1.2e-4 rad/s against 1.6e-4).
 
 SIGNALS = ("current_a", "angle_rad", "velocity_rad_s", "rail_position_m", "rail_velocity_m_s",
            "rail_acceleration_m_s2", "drive_force_n", "rod_position_m")
