@@ -35,9 +35,9 @@ class PaperEstimator(ThrowEstimator):
 
     def fit(self, spec: HypothesisSpec, throw, start: dict[str, float] | None = None, iterations: int = 20,
             rival: float = np.inf, prior_weight: float = 0.0, beaten: float = np.inf, slopes=None,
-            keep_slopes: bool = False) -> Estimate:
-        """The hypothesis's global minimum by differential evolution (start, rival, beaten and the slopes unused: it
-        needs no start and no Jacobian, and the paper fits every hypothesis to its end)."""
+            keep_slopes: bool = False, linearised=None) -> Estimate:
+        """The hypothesis's global minimum by differential evolution (start, rival, beaten, the slopes and the start's
+        linearisation unused: it needs no start and no Jacobian, and the paper fits every hypothesis to its end)."""
         if not spec.free:
             return super().fit(spec, throw, prior_weight=prior_weight)
         free = list(spec.free)

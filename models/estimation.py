@@ -509,7 +509,8 @@ class ThrowEstimator:
     # -- hypotheses ------------------------------------------------------------------------
     def fit(self, spec: HypothesisSpec, throw: PreparedThrow, start: dict[str, float] | None = None,
             iterations: int = 20, rival: float = np.inf, prior_weight: float = 0.0, beaten: float = np.inf,
-            slopes: Slopes | None = None, keep_slopes: bool = False) -> Estimate:
+            slopes: Slopes | None = None, keep_slopes: bool = False,
+            linearised: tuple[np.ndarray, np.ndarray] | None = None) -> Estimate:
         """Fit one hypothesis from `start` (a warm start or its grid's best point; elsewhere held or nominal).
 
         With `rival` (the lowest objective another hypothesis reached), the fit stops early once it is
@@ -519,7 +520,8 @@ class ThrowEstimator:
         linearisation promises would bring it below `beaten`. `prior_weight` is w of HypothesisSpec. `slopes` (the
         hypothesis's Jacobian where its fit of the switch's previous throw ended) are borrowed for the first step
         where the fit starts there (SLOPES_AGE) and no fault has been found in the throw (the test of `beaten` is
-        asked of exact Jacobians); `keep_slopes`: the estimate keeps its own for the next throw.
+        asked of exact Jacobians); `keep_slopes`: the estimate keeps its own for the next throw. `linearised`: the
+        data's residual and Jacobian at the start (linearise's, computed to choose it), not computed again.
         """
         free = list(spec.free)
         low, high = spec.bounds()
@@ -550,11 +552,14 @@ class ThrowEstimator:
 
         z0 = theta[index]  # within the bounds (_start)
         borrowed = None if slopes is None or np.isfinite(beaten) else slopes.scaled(throw, free, z0)
+        first = None if linearised is None else (np.concatenate([linearised[0], prior.residuals(z0)]),
+                                                 np.vstack([linearised[1], prior.jacobian(z0)]))
         solution = levenberg_marquardt(linearise, z0, residual=residual, lower=low, upper=high,
                                        scale=np.array([SCALES[n] for n in free]), iterations=iterations,
                                        tolerance=TOLERANCE, keep_going=keep_going,
                                        hopeless=hopeless if np.isfinite(beaten) else None,
-                                       jacobian=None if borrowed is None else np.vstack([borrowed, prior.jacobian(z0)]))
+                                       jacobian=None if borrowed is None else np.vstack([borrowed, prior.jacobian(z0)]),
+                                       first=first)
         data_rows = solution.residual.size - prior.rows
         r = solution.residual[:data_rows]
         n_eff = effective_samples(r.reshape(len(throw.rows), -1).T)
@@ -668,9 +673,9 @@ class ThrowEstimator:
         throw = self.prepare(m)
         weight = max(self.noise_weight(throw), model_weight)
         warm = warm or {}
-        start = (self._lowest_start(specs["nominal"], throw, weight, [{}, warm["nominal"]]) if "nominal" in warm
-                 else None)
-        out = {"nominal": self.fit(specs["nominal"], throw, start, prior_weight=weight)}
+        start, linearised = (self._nominal_start(specs["nominal"], throw, weight, warm["nominal"]) if "nominal" in warm
+                             else (None, None))
+        out = {"nominal": self.fit(specs["nominal"], throw, start, prior_weight=weight, linearised=linearised)}
         # A nuisance the nominal fit had to push far from its prior is the fault's effect absorbed (chairs five
         # times as dry for a missing bearing): the fault modes start it at its prior's edge, since from the
         # nominal's place the fault's parameter and the nuisance trade along a valley too flat to leave.
@@ -717,6 +722,26 @@ class ThrowEstimator:
                     break
                 estimate = refit
         return estimate
+
+    def _nominal_start(self, spec: HypothesisSpec, throw: PreparedThrow, weight: float, warm: dict[str, float]
+                       ) -> tuple[dict[str, float], tuple[np.ndarray, np.ndarray] | None]:
+        """The nominal fit's start, as _lowest_start chooses between the nominal values ({}) and `warm` (the switch's
+        previous nominal fit), with the data's residual and Jacobian there where it is `warm`: `warm`, which starts
+        nearly every throw's nominal fit (a switch changes little between throws), is judged by its linearisation,
+        which the fit then starts from instead of computing it again (one rollout fewer a throw)."""
+        prior = Prior.of(spec, weight)
+
+        def charge(theta: np.ndarray, index: list[int]) -> float:
+            return float(np.sum(prior.residuals(theta[index]) ** 2))
+
+        theta, index = self._start(spec, warm)
+        r, jacobian = self.linearise(theta, throw, index)
+        value = float(r @ r)
+        warm_objective = (value if np.isfinite(value) else np.inf) + charge(theta, index)
+        theta, index = self._start(spec, {})
+        if self.cost(theta, throw) + charge(theta, index) <= warm_objective:  # the first of equals, as _lowest_start
+            return {}, None
+        return warm, (r, jacobian)
 
     def _lowest_start(self, spec: HypothesisSpec, throw: PreparedThrow, weight: float,
                       candidates: list[dict[str, float]]) -> dict[str, float]:

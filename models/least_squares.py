@@ -46,7 +46,8 @@ def levenberg_marquardt(linearise: Linearise, z0: np.ndarray, *, cost: Callable[
                         keep_going: Callable[[float, float, int], bool] | None = None,
                         hopeless: Callable[[float, float], bool] | None = None,
                         progress: Callable[[int, float], None] | None = None,
-                        jacobian: np.ndarray | None = None) -> Solution:
+                        jacobian: np.ndarray | None = None,
+                        first: tuple[np.ndarray, np.ndarray] | None = None) -> Solution:
     """Minimise r'r within [lower, upper] from z0.
 
     `cost(z)`, when given, evaluates r'r alone for trial points (cheaper than `linearise`, which
@@ -68,6 +69,9 @@ def levenberg_marquardt(linearise: Linearise, z0: np.ndarray, *, cost: Callable[
     has converged there as Broyden's update would, and take the first step, which Broyden's update then corrects.
     Where that step does not lower r'r at its first try, or the slopes say the fit has not converged but promise
     too little to step, `linearise` runs at the start and the fit goes on from there as without them.
+
+    `first`, when given, is what `linearise` returns at z0 (computed before, to choose the start): the fit does not
+    compute it again.
     """
     z0 = np.asarray(z0, dtype=float)
     n = z0.size
@@ -78,6 +82,8 @@ def levenberg_marquardt(linearise: Linearise, z0: np.ndarray, *, cost: Callable[
     borrowed = jacobian is not None and residual is not None  # the first step is the borrowed slopes'
     if borrowed:
         r = residual(z)
+    elif first is not None:
+        r, jacobian = first
     else:
         r, jacobian = linearise(z)
     exact = not borrowed  # `jacobian` is linearise's at z, not Broyden's update or borrowed

@@ -131,6 +131,31 @@ def test_the_joint_fit_starts_where_the_best_mode_joined_with_another_modes_own_
     assert chosen is candidates[int(np.argmin(objectives))]
 
 
+def test_the_nominal_fit_starts_from_the_linearisation_that_chose_its_start(diagnoser):
+    """The nominal fit's start is chosen as _lowest_start chooses between the nominal values and the previous fit
+    (warm); where warm wins, its residual and Jacobian, computed to judge it, start the fit, which ends where it
+    ends computing them again, bit for bit. Where the nominal values win, the fit computes its own."""
+    estimator = diagnoser.estimator
+    specs = diagnoser.switch("twin").specs("left_to_right")
+    spec, weight = specs["nominal"], 1e-6
+    previous = estimator.fit_all(_noisy(_twin_throw(estimator, "left_to_right", {"motor.resistance_ohm": 10.4}), 1),
+                                 specs)["nominal"].values
+    throw = estimator.prepare(_noisy(_twin_throw(estimator, "left_to_right", {"motor.resistance_ohm": 10.5}), 2))
+    start, linearised = estimator._nominal_start(spec, throw, weight, previous)
+    assert start is previous and linearised is not None
+    assert estimator._lowest_start(spec, throw, weight, [{}, previous]) is previous
+    theta, index = estimator._start(spec, previous)
+    exact = estimator.linearise(theta, throw, index)
+    assert all(np.array_equal(a, b) for a, b in zip(linearised, exact))
+    reused = estimator.fit(spec, throw, start, prior_weight=weight, linearised=linearised)
+    again = estimator.fit(spec, throw, start, prior_weight=weight)
+    assert reused.values == again.values and reused.objective == again.objective
+    assert reused.iterations == again.iterations and reused.std == again.std
+    far = {name: high for name, (low, high) in spec.free.items()}  # every nuisance at its bound: a worse start
+    assert estimator._nominal_start(spec, throw, weight, far) == ({}, None)
+    assert estimator._lowest_start(spec, throw, weight, [{}, far]) == {}
+
+
 @pytest.fixture(scope="module")
 def causal_diagnoser() -> Diagnoser:
     d = Diagnoser("causal")
