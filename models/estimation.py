@@ -233,6 +233,10 @@ class Prior:
         transformed = np.where(logs, np.log(np.maximum(values, 1e-300)), values)
         return (self.root_weight * (transformed.T - self.mean)).T
 
+    def charge(self, z: np.ndarray) -> np.ndarray:
+        """What the priors add to r'r at z (a vector: a number; a matrix: one per column)."""
+        return np.sum(self.residuals(z) ** 2, axis=0)
+
     def jacobian(self, z: np.ndarray) -> np.ndarray:
         rows = np.zeros((self.rows, self.size))
         slope = np.where(self.logs, 1.0 / np.maximum(z[self.picked], 1e-300), 1.0)
@@ -448,9 +452,7 @@ class ThrowEstimator:
         return self._scaled(self._at_samples(self.all_outputs(theta, throw)[measured], throw) - throw.measured.T, throw)
 
     def cost(self, theta: np.ndarray, throw: PreparedThrow) -> float:
-        r = self.residuals(theta, throw)
-        value = float(r @ r)
-        return value if np.isfinite(value) else np.inf
+        return _squares(self.residuals(theta, throw))
 
     def costs(self, thetas: np.ndarray, throw: PreparedThrow, coarse: bool = False) -> np.ndarray:
         """r'r of many parameter vectors (columns), GRID_CAPACITY to a mapped call, the smallest that takes them;
@@ -480,7 +482,7 @@ class ThrowEstimator:
     def objectives(self, thetas: np.ndarray, throw: PreparedThrow, prior: Prior, index: list[int]) -> np.ndarray:
         """What a fit minimises (MSE plus the priors' charge) at many parameter vectors (columns); `index`: where
         the free parameters `prior` charges sit among PARAMETERS."""
-        return self.costs(thetas, throw) + np.sum(prior.residuals(thetas[index]) ** 2, axis=0)
+        return self.costs(thetas, throw) + prior.charge(thetas[index])
 
     def linearise(self, theta: np.ndarray, throw: PreparedThrow, index: list[int]) -> tuple[np.ndarray, np.ndarray]:
         """Residual and its Jacobian columns for the parameters at `index`."""
@@ -539,9 +541,11 @@ class ThrowEstimator:
             r = self.residuals(theta, throw)
             return self._estimate(spec.mode, theta, [], {}, r, float(r @ r), 0, len(throw.rows))
 
-        def linearise(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            r, jacobian = self.linearise(at(z), throw, index)
+        def with_priors(r: np.ndarray, jacobian: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             return np.concatenate([r, prior.residuals(z)]), np.vstack([jacobian, prior.jacobian(z)])
+
+        def linearise(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            return with_priors(*self.linearise(at(z), throw, index), z)
 
         def residual(z: np.ndarray) -> np.ndarray:
             return np.concatenate([self.residuals(at(z), throw), prior.residuals(z)])
@@ -554,8 +558,7 @@ class ThrowEstimator:
 
         z0 = theta[index]  # within the bounds (_start)
         borrowed = None if slopes is None or np.isfinite(beaten) else slopes.scaled(throw, free, z0)
-        first = None if linearised is None else (np.concatenate([linearised[0], prior.residuals(z0)]),
-                                                 np.vstack([linearised[1], prior.jacobian(z0)]))
+        first = None if linearised is None else with_priors(*linearised, z0)
         solution = levenberg_marquardt(linearise, z0, residual=residual, lower=low, upper=high,
                                        scale=np.array([SCALES[n] for n in free]), iterations=iterations,
                                        tolerance=TOLERANCE, keep_going=keep_going,
@@ -732,16 +735,10 @@ class ThrowEstimator:
         nearly every throw's nominal fit (a switch changes little between throws), is judged by its linearisation,
         which the fit then starts from instead of computing it again (one rollout fewer a throw)."""
         prior = Prior.of(spec, weight)
-
-        def charge(theta: np.ndarray, index: list[int]) -> float:
-            return float(np.sum(prior.residuals(theta[index]) ** 2))
-
         theta, index = self._start(spec, warm)
         r, jacobian = self.linearise(theta, throw, index)
-        value = float(r @ r)
-        warm_objective = (value if np.isfinite(value) else np.inf) + charge(theta, index)
-        theta, index = self._start(spec, {})
-        if self.cost(theta, throw) + charge(theta, index) <= warm_objective:  # the first of equals, as _lowest_start
+        warm_objective = _squares(r) + float(prior.charge(theta[index]))
+        if self._start_objective(spec, prior, throw, {}) <= warm_objective:  # the first of equals, as _lowest_start
             return {}, None
         return warm, (r, jacobian)
 
@@ -753,12 +750,13 @@ class ThrowEstimator:
         if len(candidates) == 1:
             return candidates[0]
         prior = Prior.of(spec, weight)
+        return min(candidates, key=lambda candidate: self._start_objective(spec, prior, throw, candidate))
 
-        def objective(candidate: dict[str, float]) -> float:
-            theta, index = self._start(spec, candidate)
-            return self.cost(theta, throw) + float(np.sum(prior.residuals(theta[index]) ** 2))
-
-        return min(candidates, key=objective)
+    def _start_objective(self, spec: HypothesisSpec, prior: Prior, throw: PreparedThrow,
+                         candidate: dict[str, float]) -> float:
+        """What a fit of `spec` minimises (MSE and the priors' charge) where it would start from `candidate`."""
+        theta, index = self._start(spec, candidate)
+        return self.cost(theta, throw) + float(prior.charge(theta[index]))
 
     def _start(self, spec: HypothesisSpec, start: dict[str, float] | None) -> tuple[np.ndarray, list[int]]:
         """The parameter vector a fit of `spec` starts from (`start`'s values of its free parameters, within their
@@ -773,6 +771,12 @@ class ThrowEstimator:
         """The model's outputs at the samples' times under `values` (nominal elsewhere)."""
         throw = self.prepare(m)
         return dict(zip(OUTPUTS, self._at_samples(self.all_outputs(self.reduced.vector(values), throw), throw)))
+
+
+def _squares(r: np.ndarray) -> float:
+    """r'r, infinite where it is not finite."""
+    value = float(r @ r)
+    return value if np.isfinite(value) else np.inf
 
 
 def _free(spec: HypothesisSpec, values: dict[str, float]) -> dict[str, float]:
