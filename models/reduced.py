@@ -152,8 +152,8 @@ class StandIns:
 
     def __init__(self, representation: Representation, w):
         x, v = ca.SX.sym("x"), ca.SX.sym("v")
-        q = representation.features(x, v, w)
-        self._features = None if q is None else ca.Function("features", [x, v, w], [q, ca.jacobian(q, ca.vertcat(x, v))])
+        made = representation.features_jacobian(x, v, w)
+        self._features = None if made is None else ca.Function("features", [x, v, w], list(made))
         self._w = w
         self._symbols: list[ca.SX] = []
         self._definitions: list[ca.SX] = []

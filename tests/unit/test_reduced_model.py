@@ -113,6 +113,25 @@ def test_sensitivity_rollout_gives_the_derivatives_of_the_rollout(name):
         np.testing.assert_allclose(block.ravel(order="F"), column, rtol=1e-8, atol=1e-9 * np.max(np.abs(column)))
 
 
+@pytest.mark.parametrize("name", ["nn", "causal"])
+def test_features_jacobian_is_the_derivative_of_the_features(name):
+    """A representation's features and their Jacobian in (x, v) (what the sensitivities carry the learned rail by,
+    StandIns), written out or CasADi's, equal CasADi's derivative of the features at points over the travel, on
+    both sides of rest, to the rounding of sums over the hidden units."""
+    stored = model_store.load(name)
+    x, v, w = ca.SX.sym("x"), ca.SX.sym("v"), ca.DM(stored.weights)
+    features = stored.representation.features(x, v, w)
+    expected = ca.Function("expected", [x, v], [features, ca.jacobian(features, ca.vertcat(x, v))])
+    made = ca.Function("made", [x, v], list(stored.representation.features_jacobian(x, v, w)))
+    rng = np.random.default_rng(5)
+    for position, velocity in zip(rng.uniform(0.98, 1.22, 200), rng.uniform(-0.4, 0.4, 200)):
+        (value, jacobian), (made_value, made_jacobian) = expected(position, velocity), made(position, velocity)
+        np.testing.assert_array_equal(np.asarray(made_value), np.asarray(value))
+        jacobian = np.asarray(jacobian)
+        row_scale = np.max(np.abs(jacobian), axis=1, keepdims=True)
+        np.testing.assert_allclose(np.asarray(made_jacobian) / row_scale, jacobian / row_scale, rtol=0, atol=1e-10)
+
+
 def test_the_switch_stage_of_training_has_the_jacobian_of_the_rollout_in_the_weights():
     """Training's switch stage: sensitivities over the rail's weights, a block of them per rollout, equal CasADi's
     AD of the rollout (the Jacobian the stage used to build, at ten times the cost)."""
