@@ -54,6 +54,26 @@ class MachineCode:
         self.machine_code = self.machine_code and ok
         return compiled
 
+    def kernel(self, name: str, body: str, inputs: dict[str, int], outputs: dict[str, int]) -> ca.Function | None:
+        """A Function from a C body (CasADi's Function.jit: `inputs` and `outputs` name its dense columns and their
+        sizes), or None without a C compiler. Its body goes into the generated code of every Function that calls
+        it, so it is compiled with them, with their flags and cache; CasADi also compiles it alone once (a tenth
+        of a second), for calls outside machine code."""
+        if shutil.which("gcc") is None and shutil.which("cc") is None:
+            return None
+        sparsities = [ca.Sparsity.dense(n) for n in (*inputs.values(), *outputs.values())]
+        scratch = tempfile.mkdtemp(prefix="railswitch-kernel-")  # not the working directory, which may be read-only
+        try:
+            return ca.Function.jit(name, body, list(inputs), list(outputs), sparsities[:len(inputs)],
+                                   sparsities[len(inputs):],
+                                   {"compiler": "shell", "jit_cleanup": False,  # removed here, below
+                                    "jit_options": {"flags": list(self.optimisation), "directory": scratch + os.sep,
+                                                    "cleanup": False, "verbose": False}})
+        except RuntimeError:  # the compiler failed on it: the models write the features out instead
+            return None
+        finally:
+            shutil.rmtree(scratch, ignore_errors=True)  # its library is loaded already
+
 
 # How the C compiler optimises the models. Beyond -O2:
 # - a division by a value used more than once becomes one reciprocal and products (-freciprocal-math: the

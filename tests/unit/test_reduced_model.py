@@ -132,6 +132,44 @@ def test_features_jacobian_is_the_derivative_of_the_features(name):
         np.testing.assert_allclose(np.asarray(made_jacobian) / row_scale, jacobian / row_scale, rtol=0, atol=1e-10)
 
 
+def test_causal_kernels_make_the_features_and_the_steps_of_the_network_written_out():
+    """The causal rail's kernels (its features as C loops over the hidden units, CausalRail.kernel_code) give its
+    features and their Jacobian, and the diagnosis's steps made with them (a rollout's and one carrying five
+    sensitivities) give those made without, at states across the travel, to the rounding of the units' sums."""
+    from railswitch.models.reduced import kernels
+    from railswitch.services.adapters.compiled import MachineCode
+
+    stored = model_store.load("causal")
+    made = kernels(stored.representation, stored.weights, MachineCode())
+    if made is None:
+        pytest.skip("no C compiler: the diagnosis writes the network out")
+    x, v, w = ca.SX.sym("x"), ca.SX.sym("v"), ca.DM(stored.weights)
+    expected = ca.Function("expected", [x, v], list(stored.representation.features_jacobian(x, v, w)))
+    rng = np.random.default_rng(11)
+    for position, velocity in zip(rng.uniform(0.98, 1.22, 100), rng.uniform(-0.4, 0.4, 100)):
+        value, jacobian = (np.asarray(out) for out in expected(position, velocity))
+        np.testing.assert_allclose(np.asarray(made[0](position, velocity)), value, rtol=1e-12, atol=1e-12)
+        kernel_value, kernel_jacobian = (np.asarray(out) for out in made[1](position, velocity))
+        np.testing.assert_allclose(kernel_value, value, rtol=1e-12, atol=1e-12)
+        row_scale = np.max(np.abs(jacobian), axis=1, keepdims=True)
+        np.testing.assert_allclose(kernel_jacobian.reshape(4, 2, order="F") / row_scale, jacobian / row_scale, rtol=0,
+                                   atol=1e-10)
+    reduced = ReducedSwitch(stored.representation, stored.weights, rate_hz=100.0)
+    pairs = [(reduced.fixed_step(), reduced.fixed_step(made)),
+             (reduced.fixed_sensitivity_step(5), reduced.fixed_sensitivity_step(5, made))]
+    seeds = np.eye(len(PARAMETERS))[:, [0, 2, 3, 4, 9]].ravel(order="F")
+    for _ in range(20):
+        state = reduced.initial_state(rng.uniform(1.0, 1.2), rng.uniform(-1.0, 1.0))
+        state[[1, 3, 5]] = rng.uniform(-20, 20), rng.uniform(-5, 5), rng.uniform(-0.2, 0.2)
+        refs, theta = rng.uniform(-30, 30, 2), reduced.vector({"bearing_friction": 3000.0, "left_bolt_offset": 0.04})
+        for (written, kernel), args in zip(pairs, [(state, refs, theta),
+                                                   (np.concatenate([state, rng.normal(size=5 * len(state))]), refs,
+                                                    theta, seeds)]):
+            for a, b in zip(written(*args), kernel(*args)):
+                a, b = np.asarray(a), np.asarray(b)
+                np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-9 * np.max(np.abs(a)))
+
+
 def test_the_switch_stage_of_training_has_the_jacobian_of_the_rollout_in_the_weights():
     """Training's switch stage: sensitivities over the rail's weights, a block of them per rollout, equal CasADi's
     AD of the rollout (the Jacobian the stage used to build, at ten times the cost)."""
