@@ -279,6 +279,33 @@ class NNRail(AcausalRepresentation):
         p = self.unflatten(w)
         return ca.vertcat(self.c(x, p), self.d(x, v, p))
 
+    def kernel_code(self, weights: np.ndarray) -> KernelCode:
+        """c(x) and d(x, v), and their Jacobian, as loops over each network's hidden units (CausalRail.kernel_code)."""
+        p = self.unflatten(np.asarray(weights, dtype=float))
+        cw0, dw0 = p["cw0"].ravel() / POSITION_SCALE_M, p["dw0"] / np.array([POSITION_SCALE_M, VELOCITY_SCALE_M_S])
+        cw1, dw1 = GAIN_SCALE * p["cw1"].ravel(), GAIN_SCALE * p["dw1"].ravel()
+        units = -(-NN_HIDDEN // KERNEL_LANES) * KERNEL_LANES
+        arrays = "\n".join([c_array("kcx", cw0), c_array("kcb", p["cb0"]), c_array("kcg", cw1), c_array("kcs", cw1 * cw0),
+                            c_array("kdx", dw0[:, 0]), c_array("kdv", dw0[:, 1]), c_array("kdb", p["db0"]),
+                            c_array("kdg", dw1), c_array("kdsx", dw1 * dw0[:, 0]), c_array("kdsv", dw1 * dw0[:, 1])])
+
+        def body(slopes: bool) -> str:
+            return arrays + f"""
+casadi_real e = x[0] - {float(p["xfix"])!r}, c = 0, d = 0, cx = 0, dx = 0, dv = 0;
+int i;
+for (i = 0; i < {units}; ++i) {{
+  casadi_real z = kcx[i] * e + kcb[i], r = 1.0 / sqrt(1.0 + z * z);
+  c += kcg[i] * (z * r);{" cx += kcs[i] * (r * r * r);" if slopes else ""}
+}}
+for (i = 0; i < {units}; ++i) {{
+  casadi_real z = kdx[i] * e + kdv[i] * v[0] + kdb[i], r = 1.0 / sqrt(1.0 + z * z);
+  d += kdg[i] * (z * r);{" dx += kdsx[i] * (r * r * r); dv += kdsv[i] * (r * r * r);" if slopes else ""}
+}}
+q[0] = c + {GAIN_SCALE * float(p["cb1"])!r}; q[1] = d + {GAIN_SCALE * float(p["db1"])!r};
+""" + ("J[0] = cx; J[1] = dx; J[2] = 0; J[3] = dv;\n" if slopes else "")
+
+        return KernelCode(body(False), body(True), 2)
+
     def acceleration(self, x, v, force, w, features=None):
         p = self.unflatten(w)
         c, d = ca.vertsplit(self.features(x, v, w) if features is None else features)

@@ -132,14 +132,15 @@ def test_features_jacobian_is_the_derivative_of_the_features(name):
         np.testing.assert_allclose(np.asarray(made_jacobian) / row_scale, jacobian / row_scale, rtol=0, atol=1e-10)
 
 
-def test_causal_kernels_make_the_features_and_the_steps_of_the_network_written_out():
-    """The causal rail's kernels (its features as C loops over the hidden units, CausalRail.kernel_code) give its
+@pytest.mark.parametrize("name", ["nn", "causal"])
+def test_kernels_make_the_features_and_the_steps_of_the_networks_written_out(name):
+    """A learned rail's kernels (its features as C loops over the hidden units, Representation.kernel_code) give its
     features and their Jacobian, and the diagnosis's steps made with them (a rollout's and one carrying five
     sensitivities) give those made without, at states across the travel, to the rounding of the units' sums."""
     from railswitch.models.reduced import kernels
     from railswitch.services.adapters.compiled import MachineCode
 
-    stored = model_store.load("causal")
+    stored = model_store.load(name)
     made = kernels(stored.representation, stored.weights, MachineCode())
     if made is None:
         pytest.skip("no C compiler: the diagnosis writes the network out")
@@ -152,8 +153,8 @@ def test_causal_kernels_make_the_features_and_the_steps_of_the_network_written_o
         kernel_value, kernel_jacobian = (np.asarray(out) for out in made[1](position, velocity))
         np.testing.assert_allclose(kernel_value, value, rtol=1e-12, atol=1e-12)
         row_scale = np.max(np.abs(jacobian), axis=1, keepdims=True)
-        np.testing.assert_allclose(kernel_jacobian.reshape(4, 2, order="F") / row_scale, jacobian / row_scale, rtol=0,
-                                   atol=1e-10)
+        np.testing.assert_allclose(kernel_jacobian.reshape(jacobian.shape, order="F") / row_scale, jacobian / row_scale,
+                                   rtol=0, atol=1e-10)
     reduced = ReducedSwitch(stored.representation, stored.weights, rate_hz=100.0)
     pairs = [(reduced.fixed_step(), reduced.fixed_step(made)),
              (reduced.fixed_sensitivity_step(5), reduced.fixed_sensitivity_step(5, made))]
