@@ -59,16 +59,20 @@ class MachineCode:
         sizes), or None without a C compiler. Its body goes into the generated code of every Function that calls
         it, so it is compiled with them, with their flags and cache; CasADi also compiles it alone once (a tenth
         of a second), for calls outside machine code."""
-        if shutil.which("gcc") is None and shutil.which("cc") is None:
+        compiler = shutil.which("gcc") or shutil.which("cc")
+        if compiler is None:
             return None
         sparsities = [ca.Sparsity.dense(n) for n in (*inputs.values(), *outputs.values())]
-        scratch = tempfile.mkdtemp(prefix="railswitch-kernel-")  # not the working directory, which may be read-only
+        try:
+            scratch = tempfile.mkdtemp(prefix="railswitch-kernel-")  # not the working directory, which may be read-only
+        except OSError:  # nowhere to compile it: the models write the features out instead
+            return None
         try:
             return ca.Function.jit(name, body, list(inputs), list(outputs), sparsities[:len(inputs)],
                                    sparsities[len(inputs):],
                                    {"compiler": "shell", "jit_cleanup": False,  # removed here, below
-                                    "jit_options": {"flags": list(self.optimisation), "directory": scratch + os.sep,
-                                                    "cleanup": False, "verbose": False}})
+                                    "jit_options": {"compiler": compiler, "flags": list(self.optimisation),
+                                                    "directory": scratch + os.sep, "cleanup": False, "verbose": False}})
         except RuntimeError:  # the compiler failed on it: the models write the features out instead
             return None
         finally:

@@ -171,6 +171,24 @@ def test_kernels_make_the_features_and_the_steps_of_the_networks_written_out(nam
                 np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-9 * np.max(np.abs(a)))
 
 
+def test_without_kernels_the_diagnosis_writes_the_networks_out():
+    """No kernels where the compiler makes none (interpreted, or a Compiler without `kernel`), where the rail has no
+    networks (poly), or where the C compiler refuses a kernel's code: the steps then write the networks out."""
+    import shutil
+
+    from railswitch.models.reduced import kernels
+    from railswitch.services.adapters.compiled import MachineCode
+
+    causal, poly = model_store.load("causal"), model_store.load("poly")
+    assert kernels(causal.representation, causal.weights, None) is None
+    assert kernels(causal.representation, causal.weights, lambda functions: functions) is None
+    assert kernels(poly.representation, poly.weights, MachineCode()) is None
+    if shutil.which("gcc") is None and shutil.which("cc") is None:
+        pytest.skip("no C compiler")
+    assert MachineCode().kernel("broken", "  y[0] = ;\n", {"x": 1}, {"y": 1}) is None
+    assert float(MachineCode().kernel("twice", "  y[0] = 2.0 * x[0];\n", {"x": 1}, {"y": 1})(3.0)) == 6.0
+
+
 def test_the_switch_stage_of_training_has_the_jacobian_of_the_rollout_in_the_weights():
     """Training's switch stage: sensitivities over the rail's weights, a block of them per rollout, equal CasADi's
     AD of the rollout (the Jacobian the stage used to build, at ten times the cost)."""
