@@ -198,8 +198,9 @@ class StandIns:
         if not self._calls:
             _, out = ca.substitute_inplace(self._symbols, self._definitions, expressions, False)
             return out
-        # Calls are not for substitute_inplace (their outputs came back NaN): one placeholder at a time, into the
-        # definitions after it (a later point is made of earlier features) and the expressions.
+        # Definitions holding calls are not for substitute_inplace (tried: the steps' outputs came back NaN): one
+        # placeholder at a time, into the definitions after it (a later point is made of earlier features) and the
+        # expressions.
         pending, out = list(self._definitions), list(expressions)
         for symbol in self._symbols:
             definition, pending = pending[0], pending[1:]
@@ -232,8 +233,9 @@ def kernels(representation: Representation, weights: np.ndarray, compiler: Compi
     if code is None:
         return None
     inputs = {"x": 1, "v": 1}
-    return (make(f"{representation.name}_features", code.features, inputs, {"q": code.size}),
+    made = (make(f"{representation.name}_features", code.features, inputs, {"q": code.size}),
             make(f"{representation.name}_features_jacobian", code.jacobian, inputs, {"q": code.size, "J": 2 * code.size}))
+    return None if None in made else made  # a kernel the compiler refused: both written out
 
 
 class ReducedSwitch:
