@@ -79,10 +79,15 @@ class KernelCode:
     size: int  # number of features
 
 
+def lanes(units: int) -> int:
+    """`units` rounded up to a multiple of KERNEL_LANES: the length of a kernel's arrays and loops."""
+    return -(-units // KERNEL_LANES) * KERNEL_LANES
+
+
 def c_array(name: str, values) -> str:
     """A static C array of doubles, padded with zeros to a multiple of KERNEL_LANES."""
     values = np.asarray(values, dtype=float).ravel()
-    padded = np.zeros(-(-values.size // KERNEL_LANES) * KERNEL_LANES)
+    padded = np.zeros(lanes(values.size))
     padded[:values.size] = values
     return f"static const casadi_real {name}[{padded.size}] = {{{', '.join(repr(float(x)) for x in padded)}}};"
 
@@ -284,7 +289,7 @@ class NNRail(AcausalRepresentation):
         p = self.unflatten(np.asarray(weights, dtype=float))
         cw0, dw0 = p["cw0"].ravel() / POSITION_SCALE_M, p["dw0"] / np.array([POSITION_SCALE_M, VELOCITY_SCALE_M_S])
         cw1, dw1 = GAIN_SCALE * p["cw1"].ravel(), GAIN_SCALE * p["dw1"].ravel()
-        units = -(-NN_HIDDEN // KERNEL_LANES) * KERNEL_LANES
+        units = lanes(NN_HIDDEN)
         arrays = "\n".join([c_array("kcx", cw0), c_array("kcb", p["cb0"]), c_array("kcg", cw1), c_array("kcs", cw1 * cw0),
                             c_array("kdx", dw0[:, 0]), c_array("kdv", dw0[:, 1]), c_array("kdb", p["db0"]),
                             c_array("kdg", dw1), c_array("kdsx", dw1 * dw0[:, 0]), c_array("kdsv", dw1 * dw0[:, 1])])
@@ -379,21 +384,25 @@ class CausalRail(Representation):
         inverse_norm = 1.0 / ca.sqrt(1.0 + z * z)
         curvature = -3.0 * z * sigmoid(z)[1] * (inverse_norm * inverse_norm)
         # d(slope j)/d(input k) = sum_i F w1_i w0_ij w0_ik s''(z_i) / (scale_j scale_k): weights alone first
-        gains = [FORCE_SCALE_N * p["w1"].T * p["w0"][:, j] / scale for j, scale in enumerate(self.input_scales)]
-        inputs = [p["w0"][:, k] / scale for k, scale in enumerate(self.input_scales[:2])]
+        gains, inputs = self._slope_weights(p)
         curvatures = ca.vertcat(*[ca.horzcat(*[ca.dot(gains[j] * inputs[k], curvature) for k in range(2)])
                                   for j in range(3)])
         return q, ca.vertcat(ca.horzcat(q[1], q[2]), curvatures)
 
+    def _slope_weights(self, p: dict) -> tuple[list, list]:
+        """Per unit, columns: F w1 w0_j / scale_j, what unit i's s'(z) adds to dg/d(input j) (j: x, v, a), and
+        w0_k / scale_k, its pre-activation's slope in x and v (k)."""
+        gains = [FORCE_SCALE_N * p["w1"].T * p["w0"][:, j] / scale for j, scale in enumerate(self.input_scales)]
+        return gains, [p["w0"][:, k] / scale for k, scale in enumerate(self.input_scales[:2])]
+
     def kernel_code(self, weights: np.ndarray) -> KernelCode:
         """`features` and `features_jacobian` as loops over the hidden units: the same sums, the constant products
         of weights made here (the pre-activation's input scales folded into the first layer's weights)."""
-        p = self.unflatten(np.asarray(weights, dtype=float))
-        w0, b0, w1 = p["w0"], p["b0"].ravel(), p["w1"].ravel()
-        units = -(-w1.size // KERNEL_LANES) * KERNEL_LANES
-        gains = [FORCE_SCALE_N * w1 * w0[:, j] / scale for j, scale in enumerate(self.input_scales)]
-        inputs = [w0[:, k] / scale for k, scale in enumerate(self.input_scales[:2])]
-        arrays = [c_array("kx", inputs[0]), c_array("kv", inputs[1]), c_array("kb", b0), c_array("kg", FORCE_SCALE_N * w1),
+        p = self.unflatten(ca.DM(np.asarray(weights, dtype=float)))
+        gains, inputs = ([np.asarray(column).ravel() for column in columns] for columns in self._slope_weights(p))
+        w1 = np.asarray(p["w1"]).ravel()
+        units = lanes(w1.size)
+        arrays = [c_array("kx", inputs[0]), c_array("kv", inputs[1]), c_array("kb", p["b0"]), c_array("kg", FORCE_SCALE_N * w1),
                   *[c_array(f"ks{j}", gains[j]) for j in range(3)]]
         head = "\n".join(arrays) + f"""
 casadi_real dx = x[0] - {MID_TRAVEL_M!r}, g = 0, s0 = 0, s1 = 0, s2 = 0;

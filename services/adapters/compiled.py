@@ -59,7 +59,7 @@ class MachineCode:
         sizes), or None without a C compiler. Its body goes into the generated code of every Function that calls
         it, so it is compiled with them, with their flags and cache; CasADi also compiles it alone once (a tenth
         of a second), for calls outside machine code."""
-        compiler = shutil.which("gcc") or shutil.which("cc")
+        compiler = c_compiler()
         if compiler is None:
             return None
         sparsities = [ca.Sparsity.dense(n) for n in (*inputs.values(), *outputs.values())]
@@ -156,7 +156,7 @@ def cached_externals(functions: list[ca.Function], cache_dir: Path, with_jacobia
         if not libraries[-1].exists():
             missing[libraries[-1]] = source
     if missing:
-        compiler = shutil.which("gcc") or shutil.which("cc")
+        compiler = c_compiler()
         if compiler is None:
             raise FileNotFoundError("no C compiler (gcc or cc) on PATH")
         with ThreadPoolExecutor(max_workers=min(len(missing), os.cpu_count() or 1)) as pool:
@@ -164,6 +164,11 @@ def cached_externals(functions: list[ca.Function], cache_dir: Path, with_jacobia
             for done in compiles:
                 done.result()  # raises the first failure
     return [ca.external(function.name(), str(library)) for function, library in zip(functions, libraries)]
+
+
+def c_compiler() -> str | None:
+    """The C compiler on PATH (gcc, else cc), or None."""
+    return shutil.which("gcc") or shutil.which("cc")
 
 
 @lru_cache(maxsize=1)
