@@ -54,6 +54,7 @@ class ElasticPeers:
         self.live = live
         self.membership = membership
         self.watch = LivelinessWatch(session, "diagnoser")
+        self.cut_off = False  # this one's own token seen gone (the membership keeps it: services/core/membership.py)
         for member in self.watch.present:
             membership.join(member)
         for item in query_all(session, STATE_KEY, STATE_QUERY_S):
@@ -68,6 +69,10 @@ class ElasticPeers:
         """Apply joins and leaves (rebalancing once if the live set changed) and answer waiting state queries."""
         changed = False
         for member, alive, at_s in self.watch.changes():
+            if member == self.membership.me and alive == self.cut_off:
+                self.cut_off = not alive
+                log.warning("cut off from the bus (this diagnoser's own token went); serving on" if self.cut_off
+                            else "back on the bus")
             changed |= self.membership.join(member, at_s) if alive else self.membership.leave(member)
         if changed:
             log.info("live diagnosers: %d", len(self.membership.members))

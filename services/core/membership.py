@@ -54,8 +54,11 @@ class Membership:
         return not known
 
     def leave(self, member: str) -> bool:
-        """Remove a member; whether the live set changed."""
-        if self.joined.pop(member, None) is None:
+        """Remove a member; whether the live set changed. This instance never leaves its own set: it runs, so it is
+        live, and its own token seen gone means it is cut off from the bus (a router restarting, say). Leaving
+        would make a lone instance the owner of nothing, and the throws that reach it meanwhile would go to no one;
+        the others take its switches either way."""
+        if member == self.me or self.joined.pop(member, None) is None:
             return False
         self._changed()
         return True

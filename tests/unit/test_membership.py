@@ -87,6 +87,17 @@ def test_a_throw_no_live_member_was_there_for_goes_to_the_live_set():
     assert membership.owner("sw1", since_s=10.0) == "vm-1201"
 
 
+def test_an_instance_that_sees_its_own_token_go_keeps_serving_its_switches():
+    # Its own token seen gone means it is cut off from the router, not dead: a lone diagnoser that left its own set
+    # would own nothing and drop every throw until its token came back.
+    membership = Membership("vm-1201")
+    membership.join("vm-1201", 10.0)
+    membership.join("vm-1202", 10.0)
+    assert not membership.leave("vm-1201") and membership.members == {"vm-1201", "vm-1202"}
+    assert membership.leave("vm-1202") and membership.members == {"vm-1201"}
+    assert membership.owner("sw1", since_s=20.0) == "vm-1201" and membership.is_mine("sw1")
+
+
 def test_joining_twice_keeps_the_earlier_time_and_changes_nothing():
     membership = Membership("vm-1201")
     assert membership.join("vm-1202", 5.0)
