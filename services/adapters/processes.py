@@ -65,8 +65,17 @@ class ServiceProcesses:
     def __enter__(self) -> ServiceProcesses:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, exc_type, exc, traceback) -> None:
         self.stop_all()
+        if exc_type is not None and issubclass(exc_type, Exception):
+            self.print_logs()
+
+    def print_logs(self, lines: int = 30) -> None:
+        """The last lines of every child's log, on stderr: what a failed run (a test on CI, say) needs to be read
+        after its scratch directory is gone."""
+        for _, path, process in self.started:
+            print(f"--- {path.name} (pid {process.pid}, exit code {process.returncode}), last {lines} lines:",
+                  self.log(process, lines), sep="\n", file=sys.stderr)
 
 
 def instance_of(process: subprocess.Popen) -> str:
