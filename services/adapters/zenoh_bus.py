@@ -25,10 +25,14 @@ from railswitch.schemas import DEFAULT_ENDPOINT, SERVICE_PREFIX, Message, Servic
 
 if TYPE_CHECKING:  # the intake module imports this one
     from railswitch.services.core.intake import Intake
+    from railswitch.services.core.membership import Membership
 
 log = logging.getLogger("railswitch.bus")
 
 RETRY_S = 1.0
+# An elastic service's session lease: one gone silent (hung, host down) leaves its live set after this, one killed
+# at once (its connection closes).
+ELASTIC_LEASE_MS = 3000
 
 
 class BusError(RuntimeError):
@@ -150,6 +154,37 @@ class LivelinessWatch:
                 out.append(self._queue.get_nowait())
             except queue.Empty:
                 return out
+
+
+class LiveSet:
+    """An elastic service's live set as seen on the bus: a Membership (services/core/membership.py) fed with the
+    instances present at start-up and then every join and leave. The instance itself joins with joined(), once its
+    token is declared; its own token seen gone is logged (cut off from the router) and does not remove it."""
+
+    def __init__(self, session: zenoh.Session, service: str, membership: Membership):
+        self.service = service
+        self.membership = membership
+        self.watch = LivelinessWatch(session, service)
+        self.cut_off = False
+        for member in self.watch.present:
+            membership.join(member)
+
+    def joined(self) -> None:
+        """This instance's token is on the bus: it serves what starts from now on."""
+        self.membership.join(self.membership.me, time.monotonic())
+
+    def poll(self) -> bool:
+        """Apply the joins and leaves seen since the last call; whether the live set changed."""
+        changed = False
+        for member, alive, at_s in self.watch.changes():
+            if member == self.membership.me and alive == self.cut_off:
+                self.cut_off = not alive
+                log.warning("this %s is %s", self.service, "cut off from the bus (its own token went); serving on"
+                            if self.cut_off else "back on the bus")
+            changed |= self.membership.join(member, at_s) if alive else self.membership.leave(member)
+        if changed:
+            log.info("live %ss: %d", self.service, len(self.membership.members))
+        return changed
 
 
 def _last_chunk(key: zenoh.KeyExpr) -> str:

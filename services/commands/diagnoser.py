@@ -21,9 +21,10 @@ import zenoh
 
 from railswitch.services.adapters.baseline_store import BaselineStore
 from railswitch.services.adapters.zenoh_bus import (
+    ELASTIC_LEASE_MS,
     BusOptions,
     Inbox,
-    LivelinessWatch,
+    LiveSet,
     Publishers,
     QueryInbox,
     StatusReporter,
@@ -40,7 +41,6 @@ from railswitch.services.core.shards import FixedShard, parse_shard
 
 log = logging.getLogger("railswitch.diagnoser")
 
-LEASE_MS = 3000  # a diagnoser gone silent (hung, host down) leaves the live set after this; one killed leaves at once
 STATE_QUERY_S = 5.0  # how long a starting diagnoser waits for the others' switch states
 STATE_KEY = "railswitch/*/state"
 INPUT_KEYS = ["railswitch/*/*"]
@@ -52,30 +52,18 @@ class ElasticPeers:
 
     def __init__(self, session: zenoh.Session, live: LiveDiagnoser, membership: Membership):
         self.live = live
-        self.membership = membership
-        self.watch = LivelinessWatch(session, "diagnoser")
-        self.cut_off = False  # this one's own token seen gone (the membership keeps it: services/core/membership.py)
-        for member in self.watch.present:
-            membership.join(member)
+        self.members = LiveSet(session, "diagnoser", membership)
         for item in query_all(session, STATE_KEY, STATE_QUERY_S):
             live.handle(item)
         self.queries = QueryInbox(session, STATE_KEY)
 
     def joined(self) -> None:
         """This one's token is on the bus: it serves the throws that start from now on."""
-        self.membership.join(self.membership.me, time.monotonic())
+        self.members.joined()
 
     def poll(self) -> None:
         """Apply joins and leaves (rebalancing once if the live set changed) and answer waiting state queries."""
-        changed = False
-        for member, alive, at_s in self.watch.changes():
-            if member == self.membership.me and alive == self.cut_off:
-                self.cut_off = not alive
-                log.warning("cut off from the bus (this diagnoser's own token went); serving on" if self.cut_off
-                            else "back on the bus")
-            changed |= self.membership.join(member, at_s) if alive else self.membership.leave(member)
-        if changed:
-            log.info("live diagnosers: %d", len(self.membership.members))
+        if self.members.poll():
             self.live.rebalance()
         self.queries.answer(self.live.state_replies)
 
@@ -83,7 +71,7 @@ class ElasticPeers:
 def run_diagnoser(options: BusOptions, *, model: str, shard: tuple[int, int] | None, stop: threading.Event,
                   status_s: float = 5.0, state: str | None = None) -> int:
     """Diagnose until stop is set (elastic without a shard); returns the number of diagnoses published."""
-    session = open_session(dataclasses.replace(options, lease_ms=LEASE_MS), stop=stop)
+    session = open_session(dataclasses.replace(options, lease_ms=ELASTIC_LEASE_MS), stop=stop)
     try:
         publishers = Publishers(session)
         # One subscription keeps samples and events in order. A fixed shard queues what arrives while its model

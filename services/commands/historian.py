@@ -2,18 +2,21 @@
 file, and the history of a switch to any Zenoh client that asks (a get on railswitch/<id>/history).
 
 Zenoh callbacks only queue; the main thread writes whatever is queued as one transaction, and a second
-thread answers queries from its own connection to the file. `--shard K/N` keeps the switches of shard K,
-as the diagnoser does; one get with consolidation off gathers every shard's answer. A damaged file stops
-the historian before it joins the bus, saying how many rows can be salvaged.
+thread answers queries from its own connection to the file. Several historians split a fleet as diagnosers
+do: by default elastic (each finds the others by their liveliness tokens and keeps the switches that rendezvous
+hashing over the live set gives it, holding the others' rows for a while in case their owner dies), or `--shard
+K/N` for good. One get with consolidation off gathers every historian's answer. A damaged file stops the
+historian before it joins the bus, saying how many rows can be salvaged.
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import queue
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import zenoh
@@ -21,8 +24,10 @@ import zenoh
 from railswitch.schemas import HISTORY_KEYS, history_key
 from railswitch.services.adapters.history_db import HistoryDb
 from railswitch.services.adapters.zenoh_bus import (
+    ELASTIC_LEASE_MS,
     BusOptions,
     Inbox,
+    LiveSet,
     Publishers,
     Received,
     StatusReporter,
@@ -32,6 +37,7 @@ from railswitch.services.adapters.zenoh_bus import (
 )
 from railswitch.services.commands.options import add_service_arguments, bounded, run_service, shard
 from railswitch.services.core.historian import Historian, HistoryAnswers, Retention
+from railswitch.services.core.membership import Membership
 from railswitch.services.core.shards import FixedShard
 
 log = logging.getLogger("railswitch.historian")
@@ -99,20 +105,29 @@ class QueryServer:
         self._thread.join()
 
 
-def run_historian(options: BusOptions, db_path: str | Path, *, is_mine: Callable[[str], bool],
-                  stop: threading.Event, keep_days: float | None = None, status_s: float = 5.0) -> int:
-    """Keep history until stop is set; returns the rows written. The file is checked before joining the bus."""
+def run_historian(options: BusOptions, db_path: str | Path, *, shard: tuple[int, int] | None, stop: threading.Event,
+                  keep_days: float | None = None, status_s: float = 5.0) -> int:
+    """Keep history until stop is set (elastic without a shard); returns the rows written. The file is checked
+    before joining the bus."""
     with HistoryDb(db_path) as db, HistoryDb(db_path, check=False) as query_db:
-        historian = Historian(db, is_mine)
+        ownership = Membership(instance_name()) if shard is None else FixedShard(shard, instance_name())
+        historian = Historian(db, ownership)
         retention = Retention(keep_days)
-        session = open_session(options, stop=stop)
+        session = open_session(dataclasses.replace(options, lease_ms=ELASTIC_LEASE_MS), stop=stop)
         try:
             inbox = Inbox(session, ["railswitch/*/diagnosis", "railswitch/*/health"])
-            with QueryServer(session, HistoryAnswers(query_db, is_mine, instance_name())) as server:
+            members = LiveSet(session, "historian", ownership) if isinstance(ownership, Membership) else None
+            with QueryServer(session, HistoryAnswers(query_db, ownership.is_mine, instance_name())) as server:
                 token = declare_service(session, "historian")  # declared once queries are answered
+                if members is not None:
+                    members.joined()
                 status = StatusReporter(Publishers(session), "historian", historian.intake, status_s)
-                log.info("history in %s (%d rows); answering %s", db.path, db.count(), HISTORY_KEYS)
+                log.info("history in %s (%d rows); answering %s; %s", db.path, db.count(), HISTORY_KEYS,
+                         "shard %d/%d" % shard if shard else f"elastic, {len(ownership.members) - 1} other "
+                         "historian(s)")
                 for batch in batches(inbox, stop):
+                    if members is not None and members.poll():
+                        historian.rebalance()
                     historian.write(batch)
                     if retention.due(time.monotonic()):
                         historian.prune(time.time_ns(), keep_days)
@@ -129,14 +144,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_service_arguments(parser, status=True)
     parser.add_argument("--db", required=True, metavar="F.sqlite",
                         help="the history file (created if missing; a restarted historian goes on with it)")
-    parser.add_argument("--shard", type=shard, default=(1, 1), metavar="K/N",
-                        help="keep only switches in shard K of N (stable hash of the switch id, as the diagnoser)")
+    parser.add_argument("--shard", type=shard, default=None, metavar="K/N",
+                        help="keep only switches in shard K of N (stable hash of the switch id, as the diagnoser's), "
+                             "for good; default: elastic, the live historians split the fleet between them")
     parser.add_argument("--keep-days", type=bounded(float, 0.01, 36_500.0, "days"), default=None, metavar="D",
                         help="delete rows older than D days (by each message's time), at start-up and hourly")
 
 
 def run(args: argparse.Namespace) -> int:
-    shard = FixedShard(args.shard, instance_name())
     return run_service(lambda options, stop: run_historian(
-        options, args.db, is_mine=shard.is_mine, stop=stop, keep_days=args.keep_days, status_s=args.status_interval),
+        options, args.db, shard=args.shard, stop=stop, keep_days=args.keep_days, status_s=args.status_interval),
         args)

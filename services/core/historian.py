@@ -2,15 +2,19 @@
 pruned, and history queries answered from the file.
 
 Writing and answering each hold their own connection to the file (SQLite's WAL lets queries read while a
-batch is written), so the service runs them in two threads. Which switches are this historian's is a
-predicate handed in (a static shard today, elastic membership later); a query for a switch is answered by
-whichever historian holds rows of it, so shards that changed hands still answer for what they stored.
+batch is written), so the service runs them in two threads. Which switches are this historian's is its
+ownership (services/core/shards.py): a fixed shard, or the elastic membership of the live historians. Elastic,
+every historian reads every switch's messages, writes its own and holds the others' for a grace period, so the
+rows of a historian that dies before writing them are written by whoever owns their switches next. A query for a
+switch is answered by whichever historian holds rows of it, so switches that changed hands still answer for what
+was stored before; merge_replies makes one history of them, a row two historians hold counted once.
 """
 from __future__ import annotations
 
 import json
 import logging
-from collections import Counter
+import time
+from collections import Counter, deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -29,11 +33,40 @@ from railswitch.schemas.history import MAX_TIME_NS
 from railswitch.services.adapters.history_db import HistoryDb, HistoryDbError, HistoryRow
 from railswitch.services.adapters.zenoh_bus import Received
 from railswitch.services.core.intake import Intake
+from railswitch.services.core.shards import FixedShard, Ownership
 
 log = logging.getLogger("railswitch.historian")
 
 MAX_PENDING = 100_000  # rows kept in memory while the file cannot be written (a full disk), oldest dropped first
 DAY_NS = 86_400 * 10**9
+# Longer than a historian's death takes to be seen (at once for a closed connection, its session lease, 3 s, for
+# a silent one) plus its loop's poll: what its owner may not have written yet is still held by the others then.
+HOLD_S = 10.0
+
+
+class HeldRows:
+    """Rows of other historians' switches, each with its owner when it arrived, for hold_s: if the owner leaves the
+    live set meanwhile, the rows go to whoever owns their switches now."""
+
+    def __init__(self, hold_s: float = HOLD_S):
+        self.hold_s = hold_s
+        self._rows: deque[tuple[float, str, HistoryRow]] = deque()  # arrival (monotonic s), owner, row; in order
+
+    def __len__(self) -> int:
+        return len(self._rows)
+
+    def hold(self, row: HistoryRow, owner: str, now_s: float) -> None:
+        self._rows.append((now_s, owner, row))
+
+    def orphaned(self, members: frozenset[str]) -> list[tuple[float, HistoryRow]]:
+        """(arrival, row) of the held rows whose owner is no longer a member, in arrival order; no longer held."""
+        orphans = [(at_s, row) for at_s, owner, row in self._rows if owner not in members]
+        self._rows = deque(entry for entry in self._rows if entry[1] in members)
+        return orphans
+
+    def expire(self, now_s: float) -> None:
+        while self._rows and self._rows[0][0] < now_s - self.hold_s:
+            self._rows.popleft()
 
 
 def message_time(message: Message) -> int:
@@ -45,9 +78,15 @@ class Historian:
     """Turns received payloads into history rows of this historian's switches and writes each batch in one
     transaction. Junk is counted per reason by the intake and never stored."""
 
-    def __init__(self, db: HistoryDb, is_mine: Callable[[str], bool]):
+    def __init__(self, db: HistoryDb, ownership: Ownership | None = None, clock: Callable[[], float] = time.monotonic):
+        """Without ownership every switch is this historian's."""
         self.db = db
-        self.intake = Intake(log, HISTORY_KINDS, is_mine)
+        self.ownership = ownership or FixedShard((1, 1), "this historian")
+        self.intake = Intake(log, HISTORY_KINDS, self.ownership.serves)
+        self.held = HeldRows()
+        self.clock = clock
+        self._taken: list[HistoryRow] = []  # held rows of a historian that left, now this one's: in the next write
+        self.taken_over = 0
         self.written = 0
         self.duplicates = 0
         self.batches = 0
@@ -61,7 +100,9 @@ class Historian:
 
         A file that cannot be written (a full disk) keeps the rows in memory and is tried again with the next
         batch: the service goes on, and nothing is lost unless MAX_PENDING rows pile up."""
-        rows = self._pending + [row for item in batch if (row := self.row(item)) is not None]
+        self.held.expire(self.clock())
+        rows = self._pending + self._taken + [row for item in batch if (row := self.row(item)) is not None]
+        self._taken = []
         if not rows:
             return 0
         try:
@@ -93,7 +134,29 @@ class Historian:
         t_ns = message_time(message)
         if t_ns > MAX_TIME_NS or message.throw_index > MAX_TIME_NS:
             return self.intake.reject(f"{kind}: time or throw index beyond 64 bits", item.key)
-        return HistoryRow(message.switch_id, kind, message.throw_index, t_ns, encode(message).decode())
+        row = HistoryRow(message.switch_id, kind, message.throw_index, t_ns, encode(message).decode())
+        owner = self.ownership.owner(message.switch_id)
+        if owner == self.ownership.me:
+            return row
+        if owner is not None:
+            self.held.hold(row, owner, item.arrived_s)
+        return None
+
+    def rebalance(self) -> int:
+        """After the live set changed: the held rows of a historian that left and whose switches are this one's
+        now are written with the next batch, the rest held for their new owners; returns how many were taken."""
+        taken = 0
+        for arrived_s, row in self.held.orphaned(self.ownership.members):
+            owner = self.ownership.owner(row.switch_id)
+            if owner == self.ownership.me:
+                self._taken.append(row)
+                taken += 1
+            elif owner is not None:
+                self.held.hold(row, owner, arrived_s)
+        if taken:
+            log.info("%d rows of a historian that left taken over", taken)
+        self.taken_over += taken
+        return taken
 
     def prune(self, now_ns: int, keep_days: float) -> int:
         """Delete the rows older than keep_days before now_ns (by each message's own time)."""
@@ -110,7 +173,8 @@ class Historian:
     def counters(self) -> dict[str, int]:
         return {"written": self.written, "duplicates": self.duplicates, "batches": self.batches,
                 "pruned": self.pruned, "pending": len(self._pending), "dropped": self.dropped,
-                "write_failures": self.write_failures}
+                "write_failures": self.write_failures, "taken_over": self.taken_over, "held": len(self.held),
+                "members": len(self.ownership.members)}
 
 
 @dataclass

@@ -13,7 +13,6 @@ import logging
 import time
 from collections import Counter
 from collections.abc import Callable
-from typing import Protocol
 
 from railswitch.schemas import (
     CommissionCommand,
@@ -29,7 +28,7 @@ from railswitch.services.core.fleet_diagnoser import DiagnosedThrow, Diagnoser
 from railswitch.services.core.handover import HeldThrow, HeldThrows, StateCache, diagnosis_key
 from railswitch.services.core.intake import Intake
 from railswitch.services.core.records import throw_of_record
-from railswitch.services.core.shards import FixedShard
+from railswitch.services.core.shards import FixedShard, Ownership
 from railswitch.services.core.throw_cutter import CutThrow, ThrowCutter
 
 log = logging.getLogger("railswitch.diagnoser")
@@ -37,21 +36,6 @@ log = logging.getLogger("railswitch.diagnoser")
 INPUT_KINDS = ("motor", "throw", "record", "commission", "diagnosis", "state")
 EXPIRE_EVERY_S = 1.0
 COUNTERS = ("diagnosed", "taken_over", "held_expired", "failed", "commissions")  # in every status, zeros too
-
-
-class Ownership(Protocol):
-    """Who diagnoses a switch's throws: FixedShard or Membership."""
-
-    me: str
-
-    @property
-    def members(self) -> frozenset[str]: ...
-
-    def serves(self, switch_id: str) -> bool: ...
-
-    def owner(self, switch_id: str, since_s: float | None = None) -> str | None: ...
-
-    def is_mine(self, switch_id: str) -> bool: ...
 
 
 class LiveDiagnoser:

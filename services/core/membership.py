@@ -3,8 +3,8 @@
 Every instance computes the same owner from the same live set with no coordinator, and when one joins or leaves
 only the switches it gains or held move (Thaler and Ravishankar, "Using name-based mappings to increase hit
 rates", IEEE/ACM Trans. Networking 6(1), 1998). The live set comes from Zenoh liveliness
-(services/adapters/zenoh_bus.py LivelinessWatch); this module is pure, so the diagnoser and the historian share
-it and it is tested without a bus.
+(services/adapters/zenoh_bus.py LiveSet); this module is pure, so the diagnoser and the historian share it and it
+is tested without a bus.
 """
 from __future__ import annotations
 
@@ -38,12 +38,14 @@ class Membership:
     def __init__(self, me: str):
         self.me = me
         self.joined: dict[str, float] = {}
-        self._owners: dict[str, str | None] = {}  # per switch, over the whole live set
+        # The live set and each switch's owner over it, replaced whole on a change: another thread (a historian's
+        # queries) may ask owner() while this one's changes the set, and reads one set and its own owners.
+        self._view: tuple[frozenset[str], dict[str, str | None]] = (frozenset(), {})
         self._last_join = -math.inf
 
     @property
     def members(self) -> frozenset[str]:
-        return frozenset(self.joined)
+        return self._view[0]
 
     def join(self, member: str, at_s: float = -math.inf) -> bool:
         """Add a member (the earlier time wins for one already known); whether the live set changed."""
@@ -64,16 +66,17 @@ class Membership:
         return True
 
     def _changed(self) -> None:
-        self._owners.clear()
+        self._view = (frozenset(self.joined), {})
         self._last_join = max(self.joined.values(), default=-math.inf)
 
     def owner(self, switch_id: str, since_s: float | None = None) -> str | None:
         """The member serving switch_id; with since_s (when a throw started here), among those that had joined by
         then, if any had."""
         if since_s is None or since_s >= self._last_join:
-            if switch_id not in self._owners:
-                self._owners[switch_id] = rendezvous_owner(switch_id, self.joined)
-            return self._owners[switch_id]
+            live, owners = self._view
+            if switch_id not in owners:
+                owners[switch_id] = rendezvous_owner(switch_id, live)
+            return owners[switch_id]
         there = [member for member, at_s in self.joined.items() if at_s <= since_s]
         if there and self.me not in there and self.owner(switch_id) == self.me:
             return self.me  # diagnosed twice at worst, by the owner of then as well

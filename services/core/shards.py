@@ -1,7 +1,9 @@
-"""Splitting a fleet between diagnoser processes for good: shard K of N by a stable hash of the switch id."""
+"""Splitting a fleet between diagnoser (or historian) processes for good: shard K of N by a stable hash of the
+switch id; and what every way of splitting it answers (Ownership)."""
 from __future__ import annotations
 
 import zlib
+from typing import Protocol
 
 
 def parse_shard(text: str) -> tuple[int, int]:
@@ -20,6 +22,22 @@ def in_shard(switch_id: str, shard: tuple[int, int]) -> bool:
     """Stable across processes and machines (CRC-32 of the id, not Python's salted hash)."""
     k, n = shard
     return zlib.crc32(switch_id.encode()) % n == k - 1
+
+
+class Ownership(Protocol):
+    """Which instance serves a switch (diagnoses its throws, keeps its history): FixedShard or, elastic, Membership
+    (services/core/membership.py)."""
+
+    me: str
+
+    @property
+    def members(self) -> frozenset[str]: ...
+
+    def serves(self, switch_id: str) -> bool: ...
+
+    def owner(self, switch_id: str, since_s: float | None = None) -> str | None: ...
+
+    def is_mine(self, switch_id: str) -> bool: ...
 
 
 class FixedShard:

@@ -1,21 +1,27 @@
 """The historian as a real process: an outside Zenoh client gets a switch's history from one historian and from
-two shards at once, a historian killed with -9 loses no committed row and goes on with its file, and one told
-to keep D days prunes its file at start-up."""
+two shards at once, elastic historians split the fleet and hand it over, a historian killed with -9 loses no
+committed row and goes on with its file, and one told to keep D days prunes its file at start-up."""
 from __future__ import annotations
 
 import signal
 import sqlite3
 import time
 from collections import Counter
+from pathlib import Path
 
 from railswitch.schemas import encode, history_key
 from railswitch.services.adapters.history_db import HistoryDb, HistoryRow
 from railswitch.services.core.historian import DAY_NS, message_time
+from railswitch.services.adapters.processes import instance_of
+from railswitch.services.adapters.zenoh_bus import ELASTIC_LEASE_MS
+from railswitch.services.core.membership import rendezvous_owner
 from railswitch.services.core.shards import in_shard
 from tests.history_bus import ask, diagnosis, health, publish_throws, rows, start_historian, wait_for_rows
-from tests.live import live_bus, wait_for
+from tests.live import ServiceWatch, live_bus, wait_for
 
 SWITCHES = [f"sw{k}" for k in range(1, 9)]  # crc32 puts four in each of two shards
+SETTLE_S = 5.0  # the issue's target: a join or a leave moves ownership within 5 s
+LEASE_S = ELASTIC_LEASE_MS / 1000  # how long a hung historian's token stays
 
 
 def test_an_outside_client_gets_a_switchs_history_from_a_live_historian(tmp_path):
@@ -50,6 +56,70 @@ def test_two_sharded_historians_answer_one_query_with_every_row_exactly_once(tmp
         with sqlite3.connect(tmp_path / f"{shard}.sqlite") as db:
             stored = {s for (s,) in db.execute("SELECT DISTINCT switch_id FROM history")}
         assert stored == {s for s in SWITCHES if in_shard(s, (int(shard[-1]), 2))}
+
+
+def stored_switches(db: Path, throws: range) -> set[str]:
+    with sqlite3.connect(db) as direct:
+        return {s for (s,) in direct.execute("SELECT DISTINCT switch_id FROM history WHERE throw_index >= ? AND "
+                                             "throw_index < ?", (throws.start, throws.stop))}
+
+
+def every_row(switches: list[str], throws: range) -> set[tuple[str, str, int]]:
+    return {(s, kind, k) for s in switches for kind in ("diagnosis", "health") for k in throws}
+
+
+def test_elastic_historians_split_the_fleet_take_a_newcomers_share_and_write_a_hung_ones_rows(tmp_path):
+    """Elastic (no --shard): each historian keeps the switches rendezvous hashing over the live set gives it. A
+    third one takes its share within 5 s; one that hangs (SIGSTOP: silent, its token kept until its lease ends) and is
+    then killed loses no row published meanwhile, because the others held those rows and write them once it has
+    left. Restarted on its file, it answers for what it stored before, and one gathered query holds every row."""
+    switches = [f"el{k}" for k in range(12)]
+    dbs = [tmp_path / f"h{k}.sqlite" for k in range(3)]
+    with live_bus(tmp_path) as (services, endpoint, session, _):
+        watch = ServiceWatch(session, "historian")
+
+        def all_see(instances: list[str], members: int, after_s: float = float("-inf")) -> list[float | None]:
+            return [watch.first(i, lambda status: status.counters["members"] == members, after_s) for i in instances]
+
+        pair = [start_historian(services, session, endpoint, db) for db in dbs[:2]]
+        names = [instance_of(p) for p in pair]
+        wait_for(lambda: None not in all_see(names, 2), 10, "both historians to see each other")
+        publish_throws(session, switches, range(4))
+        wait_for_rows(session, len(every_row(switches, range(4))))
+        split = [stored_switches(db, range(4)) for db in dbs[:2]]
+
+        third = start_historian(services, session, endpoint, dbs[2])
+        names.append(instance_of(third))
+        wait_for(lambda: None not in all_see(names, 3), 10, "all three to see the third")
+        settled = [t - watch.appeared[names[2]] for t in all_see(names[:2], 3)]
+        publish_throws(session, switches, range(4, 8))
+        wait_for_rows(session, len(every_row(switches, range(8))))
+        share = [stored_switches(db, range(4, 8)) for db in dbs]
+
+        pair[0].send_signal(signal.SIGSTOP)
+        hung_s = time.monotonic()
+        publish_throws(session, switches, range(8, 12))
+        wait_for(lambda: None not in all_see(names[1:], 2, hung_s), 20, "the others to see the hung one leave")
+        left = [t - hung_s for t in all_see(names[1:], 2, hung_s)]
+        services.stop(pair[0], signal.SIGKILL)
+        wait_for(lambda: every_row(switches, range(8, 12)) <= set(rows(ask(session, "railswitch/*/history")[0])),
+                 30, "every row of throws 8 to 11 answered by the two left")
+        answered_s = time.monotonic()
+        wait_for(lambda: all(watch.latest(i, answered_s) for i in names[1:]), 10, "statuses after that")
+        taken = sum(watch.latest(i).counters["taken_over"] for i in names[1:])
+        start_historian(services, session, endpoint, dbs[0])  # back on its file
+        everything, errors = ask(session, "railswitch/*/history")
+    first = {s for s in switches if rendezvous_owner(s, names[:2]) == names[0]}
+    assert split == [first, set(switches) - first]  # each switch in exactly one file
+    assert share[2] == {s for s in switches if rendezvous_owner(s, names) == names[2]} != set()  # the third's share
+    assert share[0] | share[1] == set(switches) - share[2] and not share[0] & share[1]
+    assert all(t <= SETTLE_S for t in settled), settled
+    assert all(t <= LEASE_S + SETTLE_S for t in left), left
+    hung = sorted(s for s in switches if rendezvous_owner(s, names) == names[0])
+    # Its rows of throws 8 to 11, held by the others and written once it left (and some older ones still held).
+    assert taken >= len(every_row(hung, range(8, 12))) > 0
+    assert stored_switches(dbs[0], range(8, 12)) == set()
+    assert errors == [] and set(rows(everything)) == every_row(switches, range(12))
 
 
 def test_a_historian_killed_with_9_loses_no_committed_row_and_goes_on_with_its_file(tmp_path):

@@ -25,7 +25,8 @@ from railswitch.schemas import (
 from railswitch.services.adapters.history_db import HistoryDb, HistoryRow
 from railswitch.services.adapters.zenoh_bus import Received
 from railswitch.schemas.history import format_time
-from railswitch.services.core.historian import DAY_NS, Historian
+from railswitch.services.core.historian import DAY_NS, HOLD_S, Historian
+from railswitch.services.core.membership import Membership, rendezvous_owner
 from tests.history_bus import (
     T0_NS,
     THROW_NS,
@@ -75,7 +76,7 @@ def test_rows_older_than_keep_days_by_their_own_time_are_pruned(tmp_path):
     with HistoryDb(tmp_path / "history.sqlite") as db:
         db.write([stored(s, kind, k) for s in ("sw1", "sw2") for kind in ("diagnosis", "health")
                   for k in range(3 * throws_per_day)])  # three days of throws
-        historian = Historian(db, is_mine=lambda switch_id: True)
+        historian = Historian(db)
         now_ns = T0_NS + 3 * DAY_NS  # just after the last throw
         assert historian.prune(now_ns, keep_days=1.0) == 2 * 2 * 2 * throws_per_day
         kept, _ = db.latest("sw1", "diagnosis", None, None, limit=MAX_LIMIT)
@@ -120,13 +121,51 @@ class FullOnce(HistoryDb):
 
 def test_a_batch_is_one_transaction_and_one_the_file_refused_is_kept_and_written_with_the_next(tmp_path):
     with FullOnce(tmp_path / "history.sqlite") as db:
-        historian = Historian(db, is_mine=lambda switch_id: True)
+        historian = Historian(db)
         first = [Received(key_expr("sw1", "diagnosis"), encode(diagnosis("sw1", k)), 0.0) for k in range(3)]
         assert historian.write(first) == 0 and db.count() == 0  # all or none: the good rows went back too
         assert historian.counters() | {"pending": 3, "write_failures": 1} == historian.counters()
         second = [Received(key_expr("sw1", "health"), encode(health("sw1", 0)), 0.0)]
         assert historian.write(second) == 4 and db.count() == 4  # the kept rows and the new one, one transaction
         assert historian.counters()["pending"] == 0 and historian.counters()["batches"] == 1
+
+
+def received(switch_id: str, kind: str, throw: int, arrived_s: float) -> Received:
+    message = diagnosis(switch_id, throw) if kind == "diagnosis" else health(switch_id, throw)
+    return Received(key_expr(switch_id, kind), encode(message), arrived_s)
+
+
+def test_an_elastic_historian_writes_its_own_switches_and_those_of_one_that_left_within_the_hold(tmp_path):
+    switches = [f"sw{k}" for k in range(40)]
+    members = ["hist-a", "hist-b", "hist-c"]
+    ours = {s for s in switches if rendezvous_owner(s, members) == "hist-a"}
+    bs = {s for s in switches if rendezvous_owner(s, members) == "hist-b"}
+    after_b = {s for s in bs if rendezvous_owner(s, ["hist-a", "hist-c"]) == "hist-a"}
+    assert ours and bs and after_b and after_b != bs  # b's switches go to both a and c
+    now = [100.0]
+    membership = Membership("hist-a")
+    for member in members:
+        membership.join(member, 0.0)
+    with HistoryDb(tmp_path / "history.sqlite") as db:
+        historian = Historian(db, membership, clock=lambda: now[0])
+        historian.write([received(s, "diagnosis", 0, 100.0) for s in switches])
+        assert {row[0] for row in stored_rows(db)} == ours  # only its own; b's and c's held
+        now[0] = 100.0 + HOLD_S + 1.0
+        historian.write([received(s, "diagnosis", 1, now[0]) for s in switches])  # throw 0's held rows expire
+        membership.leave("hist-b")
+        assert historian.rebalance() == len(after_b)  # b left before writing throw 1: a writes its part
+        historian.write([])
+        assert set(stored_rows(db)) == {(s, 0) for s in ours} | {(s, 1) for s in ours | after_b}
+        assert historian.counters()["taken_over"] == len(after_b)
+        # Throw 1 of c's switches and of b's that are c's now: held for c.
+        assert historian.counters()["members"] == 2
+        assert historian.counters()["held"] == len(switches) - len(ours | after_b)
+
+
+def stored_rows(db: HistoryDb) -> list[tuple[str, int]]:
+    return [(switch_id, throw) for switch_id in db.switches()
+            for throw in (decode(Diagnosis, p.encode()).throw_index
+                          for p in db.latest(switch_id, "diagnosis", None, None, MAX_LIMIT)[0])]
 
 
 # -- bad queries and junk on a live historian ---------------------------------------------------------
