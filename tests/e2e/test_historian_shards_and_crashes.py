@@ -72,7 +72,8 @@ def test_elastic_historians_split_the_fleet_take_a_newcomers_share_and_write_a_h
     """Elastic (no --shard): each historian keeps the switches rendezvous hashing over the live set gives it. A
     third one takes its share within 5 s; one that hangs (SIGSTOP: silent, its token kept until its lease ends) and is
     then killed loses no row published meanwhile, because the others held those rows and write them once it has
-    left. Restarted on its file, it answers for what it stored before, and one gathered query holds every row."""
+    left. Restarted on its file, it answers for what it stored before, and one gathered query holds every row. One
+    killed with -9 leaves within 5 s, and the rows published right after are kept by the other two."""
     switches = [f"el{k}" for k in range(12)]
     dbs = [tmp_path / f"h{k}.sqlite" for k in range(3)]
     with live_bus(tmp_path) as (services, endpoint, session, _):
@@ -107,8 +108,18 @@ def test_elastic_historians_split_the_fleet_take_a_newcomers_share_and_write_a_h
         answered_s = time.monotonic()
         wait_for(lambda: all(watch.latest(i, answered_s) for i in names[1:]), 10, "statuses after that")
         taken = sum(watch.latest(i).counters["taken_over"] for i in names[1:])
-        start_historian(services, session, endpoint, dbs[0])  # back on its file
+        back = start_historian(services, session, endpoint, dbs[0])  # back on its file
         everything, errors = ask(session, "railswitch/*/history")
+
+        after = [instance_of(back), names[2]]
+        wait_for(lambda: None not in all_see([names[1], *after], 3), 10, "all three to see the restarted one")
+        services.stop(pair[1], signal.SIGKILL)  # killed: its connection closes, its token goes at once
+        killed_s = time.monotonic()
+        publish_throws(session, switches, range(12, 16))
+        wait_for(lambda: None not in all_see(after, 2, killed_s), 10, "the others to see the killed one leave")
+        gone = [t - killed_s for t in all_see(after, 2, killed_s)]
+        wait_for(lambda: every_row(switches, range(12, 16)) <= set(rows(ask(session, "railswitch/*/history")[0])),
+                 30, "every row of throws 12 to 15 answered by the two left")
     first = {s for s in switches if rendezvous_owner(s, names[:2]) == names[0]}
     assert split == [first, set(switches) - first]  # each switch in exactly one file
     assert share[2] == {s for s in switches if rendezvous_owner(s, names) == names[2]} != set()  # the third's share
@@ -120,6 +131,8 @@ def test_elastic_historians_split_the_fleet_take_a_newcomers_share_and_write_a_h
     assert taken >= len(every_row(hung, range(8, 12))) > 0
     assert stored_switches(dbs[0], range(8, 12)) == set()
     assert errors == [] and set(rows(everything)) == every_row(switches, range(12))
+    assert all(t <= SETTLE_S for t in gone), gone
+    assert stored_switches(dbs[1], range(12, 16)) == set()  # throws 12 to 15 were kept by the other two
 
 
 def test_a_historian_killed_with_9_loses_no_committed_row_and_goes_on_with_its_file(tmp_path):
