@@ -13,7 +13,9 @@
 - current_only: the same matrix as a unit that logs the motor current alone sees it.
 - mixed_stream: switches sampled at 10, 25, 50 and 100 Hz whose throws last 5 to 9 s
   (machine types of other stroke times), on the one warm diagnoser: its compiles and
-  latency, next to a plain stream (50 Hz, 7 s) of as many throws.
+  latency, next to a plain stream (50 Hz, 7 s) of as many throws; and healthy switches
+  of the same rates and lengths, whose faulty decisions after commissioning are false
+  alarms (`healthy`).
 - paper_de: the paper's estimator (differential evolution per hypothesis,
   benchmarks/paper_de.py) on the faulty throws of the first cases of the matrix, from
   the same commissioned state as ours, against ours on the same throws.
@@ -50,6 +52,7 @@ PAPER_SCENARIOS = {  # recording -> (mode, injected parameters), as in recording
 MAGNITUDE = {"left_bolt": "left_bolt_offset", "right_bolt": "right_bolt_offset",
              "missing_bearing": "bearing_friction", "obstacle": "obstacle_friction",
              "drive_friction": "drive_friction_nm"}
+HEALTHY_THROWS = 4  # of each healthy switch of MIXED, after its commissioning
 MIXED = ((10.0, 5.0), (25.0, 6.0), (50.0, 7.0), (100.0, 9.0), (10.0, 9.0), (25.0, 8.0), (50.0, 5.0), (100.0, 6.0))
 
 
@@ -204,10 +207,22 @@ def mixed_stream(timed: Timed, plant: Plant, noise: float, seed: int, verbose: b
             if verbose:
                 print(name, rate, length, mode, diagnoses[-1].decision)
             del timed.diagnoser.switches[f"{name}{k}"]
+    alarmed = []  # healthy switches of every (rate, length): (rate, length, faulty decisions of HEALTHY_THROWS)
+    for k, (rate, length) in enumerate(MIXED):
+        diagnoses = run_case(Timed(timed.diagnoser), plant, f"healthy{k}", {}, noise, seed + 100 + k,
+                             throws=HEALTHY_THROWS, rate_hz=rate, stroke_s=length - 0.6)
+        faulty = [d.decision for d in diagnoses if d.decision != "nominal"]
+        if faulty:
+            alarmed.append({"rate_hz": rate, "length_s": length, "decisions": faulty})
+        if verbose:
+            print("healthy", rate, length, [d.decision for d in diagnoses])
+        del timed.diagnoser.switches[f"healthy{k}"]
     return {"compiles": timed.diagnoser.compiles,  # in this process, warm-up included
             "rates_hz": sorted({r for r, _ in MIXED}), "lengths_s": sorted({s for _, s in MIXED}),
             "correct": correct, "switches": len(MIXED),
-            "latency_ms": percentiles(latency["mixed"]), "plain_latency_ms": percentiles(latency["plain"])}
+            "latency_ms": percentiles(latency["mixed"]), "plain_latency_ms": percentiles(latency["plain"]),
+            "healthy": {"switches": len(MIXED), "throws": HEALTHY_THROWS * len(MIXED),
+                        "false_alarms": sum(len(a["decisions"]) for a in alarmed), "alarmed": alarmed}}
 
 
 def main() -> None:
