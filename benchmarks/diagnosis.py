@@ -209,6 +209,7 @@ def mixed_stream(timed: Timed, plant: Plant, noise: float, seed: int, verbose: b
             del timed.diagnoser.switches[f"{name}{k}"]
     alarmed = []  # healthy switches of every (rate, length): (rate, length, faulty decisions of HEALTHY_THROWS)
     for k, (rate, length) in enumerate(MIXED):
+        # A Timed of its own: these throws stay out of the latency and throughput figures.
         diagnoses = run_case(Timed(timed.diagnoser), plant, f"healthy{k}", {}, noise, seed + 100 + k,
                              throws=HEALTHY_THROWS, rate_hz=rate, stroke_s=length - 0.6)
         faulty = [d.decision for d in diagnoses if d.decision != "nominal"]

@@ -55,8 +55,8 @@ class HeldRows:
     def __len__(self) -> int:
         return len(self._rows)
 
-    def hold(self, row: HistoryRow, owner: str, now_s: float) -> None:
-        self._rows.append((now_s, owner, row))
+    def hold(self, row: HistoryRow, owner: str, arrived_s: float) -> None:
+        self._rows.append((arrived_s, owner, row))
 
     def orphaned(self, members: frozenset[str]) -> list[tuple[float, HistoryRow]]:
         """(arrival, row) of the held rows whose owner is no longer a member, in arrival order; no longer held."""
