@@ -108,6 +108,8 @@ HOPELESS_MARGIN = 5.0
 SLOPES_AGE = 2
 OUTPUTS_KEPT = 32  # rollouts a prepared throw keeps (a throw's fits take about 12)
 START_SIGMAS = 3.0  # fault modes start the nominal fit's nuisances within this many prior std of their means
+# The label of a hypothesis that is the switch as it now is without one of its present faults (a repair): WITHOUT + mode.
+WITHOUT = "without:"
 # A bolt drives the blades in one direction only (the left bolt from left to right).
 DRIVING_BOLT = {"left_to_right": "left_bolt", "right_to_left": "right_bolt"}
 _MEASURED_ROWS = [OUTPUTS.index(name) for name in MEASURED]
@@ -173,6 +175,7 @@ class HypothesisSpec:
     # the grid a settled throw ranks beside the warm start (ThrowEstimator.fit_all; SETTLED); None: `grid`
     settled_grid: tuple[dict[str, float], ...] | None = None
     scanned: tuple[str, ...] = ()  # free parameters whose fit is checked by a scan around it (SCAN_STEP)
+    initial: dict[str, float] = field(default_factory=dict)  # where free parameters start when a start does not say
 
     def within_priors(self, values: dict[str, float], sigmas: float) -> dict[str, float]:
         """`values` with each parameter that has a prior brought to within `sigmas` standard deviations of its
@@ -673,12 +676,21 @@ class ThrowEstimator:
         warm = warm or {}
         start, linearised = (self._nominal_start(specs["nominal"], throw, weight, warm["nominal"]) if "nominal" in warm
                              else (None, None))
+        if specs["nominal"].grid:  # the switch's present faults each back at its reference compete as starts too
+            base = warm.get("nominal", {})
+            start = self._lowest_start(specs["nominal"], throw, weight,
+                                       [start or {}, *({**base, **point} for point in specs["nominal"].grid)])
+            linearised = None if start is not warm.get("nominal") else linearised
         out = {"nominal": self.fit(specs["nominal"], throw, start, prior_weight=weight, linearised=linearised)}
+        # The switch without each of its present faults (a repair): from the present fit, the fault's own parameters
+        # at their reference (the spec holds them there).
+        removals = {label: self.fit(specs[label], throw, out["nominal"].values, prior_weight=weight)
+                    for label in specs if label.startswith(WITHOUT)}
         # A nuisance the nominal fit had to push far from its prior is the fault's effect absorbed (chairs five
         # times as dry for a missing bearing): the fault modes start it at its prior's edge, since from the
         # nominal's place the fault's parameter and the nuisance trade along a valley too flat to leave.
         nominal = specs["nominal"].within_priors(out["nominal"].values, START_SIGMAS)
-        modes = [mode for mode in specs if mode not in ("nominal", "joint")]
+        modes = [mode for mode in specs if mode not in ("nominal", "joint") and not mode.startswith(WITHOUT)]
         settled = settled_mse is not None and out["nominal"].mse <= (1.0 + SETTLED) * settled_mse
         starts, lowest = self.grid_starts([specs[mode] for mode in modes], nominal, throw, warm, settled)
         for mode in sorted(modes, key=lambda mode: lowest.get(mode, -np.inf)):  # unranked ones first, in order
@@ -687,7 +699,7 @@ class ThrowEstimator:
             out[mode] = self.fit(specs[mode], throw, starts.get(mode, nominal), rival=rival, prior_weight=weight,
                                  beaten=np.inf if shown == "nominal" else out[shown].objective,
                                  slopes=(slopes or {}).get(mode) if settled else None, keep_slopes=True)
-        out = {"nominal": out["nominal"], **{mode: out[mode] for mode in modes}}  # in the specs' order
+        out = {"nominal": out["nominal"], **{mode: out[mode] for mode in modes}, **removals}  # in the specs' order
         best = min(modes, key=lambda mode: out[mode].objective) if modes else "nominal"  # a scan keeps it best
         if specs[best].scanned and out[best].objective < SCAN_WHEN * out["nominal"].objective:
             out[best] = self.scanned(specs[best], throw, out[best], weight)
@@ -755,7 +767,7 @@ class ThrowEstimator:
         """The parameter vector a fit of `spec` starts from (`start`'s values of its free parameters, within their
         bounds; its held ones; nominal elsewhere) and where its free parameters sit in it."""
         low, high = spec.bounds()
-        theta = self.reduced.vector({**spec.fixed, **_free(spec, start or {})})
+        theta = self.reduced.vector({**spec.fixed, **_free(spec, {**spec.initial, **(start or {})})})
         index = [PARAMETERS.index(n) for n in spec.free]
         theta[index] = np.clip(theta[index], low, high)
         return theta, index

@@ -320,13 +320,21 @@ class HealthTracker:
     def reset(self) -> None:
         """A repaired or re-commissioned switch starts afresh."""
         self.filters: dict[str, TrendFilter] = {}
-        for name in TRACKED:
+        self.histories: dict[str, History] = {}
+        self.states: dict[str, str] = {}
+        self._calls: dict[str, tuple[str, int]] = {}
+        self.restart(TRACKED)
+
+    def restart(self, names) -> None:
+        """These parameters start afresh (a repaired fault: its level went back at once, and its growth so far says
+        nothing of what comes)."""
+        for name in names:
             span = FAULT_PARAMETERS[name].high - FAULT_PARAMETERS[name].low
             q = np.diag([(LEVEL_WANDER * span) ** 2, (SLOPE_WANDER * span) ** 2])
             self.filters[name] = TrendFilter(q=q)
-        self.histories: dict[str, History] = {name: History() for name in TRACKED}
-        self.states = dict.fromkeys(TRACKED, "ok")
-        self._calls = {name: ("ok", 0) for name in TRACKED}
+            self.histories[name] = History()
+            self.states[name] = "ok"
+            self._calls[name] = ("ok", 0)
 
     def to_dict(self) -> dict:
         """What a restarted diagnoser needs to go on tracking: every filter and the alarm states."""

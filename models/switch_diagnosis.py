@@ -43,9 +43,28 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from railswitch.models.drive import DriveParams
-from railswitch.models.estimation import DRIVING_BOLT, Estimate, HypothesisSpec, Measurement, ThrowEstimator
+from railswitch.models.estimation import DRIVING_BOLT, WITHOUT, Estimate, HypothesisSpec, Measurement, ThrowEstimator
+from railswitch.models.fault_set import (
+    MAGNITUDE,
+    Fault,
+    Undecided,
+    decide_between,
+    describe_standing,
+    observable,
+    repaired,
+    size_of,
+)
 from railswitch.models.health import TRACKED, Health, HealthTracker
-from railswitch.models.isolation import EVIDENCE_THROWS, OTHER_DIRECTION, Evidence, healthy_gains, judge
+from railswitch.models.isolation import (
+    EVIDENCE_THROWS,
+    OTHER_DIRECTION,
+    Evidence,
+    candidate_modes,
+    healthy_gains,
+    judge,
+    presence,
+    separable,
+)
 from railswitch.models.population import credible_range, spread
 from railswitch.models.reduced import NUISANCES
 from railswitch.models.reference import DIRECTIONS, Reference
@@ -54,6 +73,7 @@ from railswitch.schemas.faults import FAULT_PARAMETERS, MODE_PARAMETERS
 from railswitch.schemas.plant import PLANT_PARAMETERS
 
 CLOSED_START_M = {"left_to_right": 1.0, "right_to_left": 1.2}  # where a throw starts when the last one closed
+SHORT_START_M = 0.002  # a throw starting further than this from the stock rail starts short (SwitchDiagnoser._judged)
 GAP_TOLERANCE = 0.25  # of a sample period, for "the samples are evenly spaced"
 # A throw ends when the point machine detects its end position, earlier or later than its reference profile
 # ends; it is cut short only when it ends while the motor is still asked to turn (or, where measured, still
@@ -97,11 +117,39 @@ BOUND_SIGMAS = 5.0  # a commissioned level's hard limits, in its standard deviat
 # about what the model's error reads as a bolt on a healthy switch unlike the nominal one (a machine type
 # stroking 30 % slower reads -3 mm on both bolts; the worst population switch on nn up to 4 mm).
 BOLT_TOLERANCE = 0.005
+# A bolt read tighter than its mark by less than this, on a switch with another present fault, is no fault either. The
+# reduced model's contact between rod and adjuster is four times softer than a real bolt's (ReducedParams:
+# 2.5e5 N/m along the rod, for its 10 ms step), so what another fault adds to the force that starts the blades delays
+# them in the model, and the fit makes up for it with a tighter bolt: 5 to 8 mm beside a missing bearing, an
+# obstacle, drive friction or a loose bolt of the other direction (which leaves the next throw starting short), always
+# tight, never loose (poly, benchmarks.aging's stacked sequences).
+TIGHT_TOLERANCE = 0.010
+# An obstacle fitted below this friction is no fault: on healthy switches the obstacle's hypothesis reads the model's
+# error as one of 2000 to 2600 N·s/m at an end of the travel, and on a switch whose rollers lose 1.8 times the
+# population's, as 3500 to 4000 (seen with poly); a third of its maintenance limit (models/health.py), a tenth of the
+# smallest obstacle any benchmark or test injects.
+OBSTACLE_TOLERANCE = 10_000.0
+# How far a missing bearing's fit may go beyond the contract's range: a switch whose rollers lose twice what the
+# population's do (a standing condition) reads as about 11 000 N·s/m of bearing friction before it is accepted.
+BEARING_REACH = 1.5
 BOLT_GRID = tuple(np.round(np.arange(-0.02, 0.2001, 0.02), 4))
 OBSTACLE_GRID = tuple({"obstacle_position": round(float(p), 3), "obstacle_friction": f}
                       for p in np.arange(1.02, 1.1801, 0.02) for f in (3e4, 1.5e5))
 # A settled throw's (models/estimation.py SETTLED): an obstacle that appears without changing the throw is a small one.
 SMALL_OBSTACLE_GRID = tuple(point for point in OBSTACLE_GRID if point["obstacle_friction"] == 3e4)
+
+
+def small(mode: str, departures: dict[str, float], loaded: bool = False) -> bool:
+    """Whether a fault of `mode` this size (its parameters' departures from their marks, the model's bias taken off)
+    is no fault: a bolt within BOLT_TOLERANCE of its mark (an adjustment), or read tight by less than TIGHT_TOLERANCE
+    on a switch `loaded` by another present fault; an obstacle below OBSTACLE_TOLERANCE (what the model's error reads
+    as one)."""
+    if mode in DRIVING_BOLT.values():
+        offset = departures[MODE_PARAMETERS[mode][0]]
+        return -(TIGHT_TOLERANCE if loaded else BOLT_TOLERANCE) < offset < BOLT_TOLERANCE
+    if mode == "obstacle":
+        return departures["obstacle_friction"] < OBSTACLE_TOLERANCE
+    return False
 
 
 @dataclass(frozen=True)
@@ -193,11 +241,19 @@ def population(gains: dict[str, dict[str, float]] | None = None, model_weight: f
 
 @dataclass
 class Baseline:
-    """A switch's commissioning: the nominal fit's baselined values and each mode's gain on its healthy throws."""
+    """A switch's commissioning: the nominal fit's baselined values and each mode's gain on its healthy throws, and
+    what an operator accepted as the switch's own (`railswitch commission SW --accept`)."""
 
     needed: int = COMMISSIONING_THROWS
     healthy: dict[str, list[dict]] = field(default_factory=lambda: {d: [] for d in DIRECTIONS})
     recent: dict[str, float] = field(default_factory=dict)  # drifting nuisances' recent levels (DRIFTING)
+    # Accepted standing conditions: what each baselined parameter's level is beside the population's (before
+    # commissioning) or beside its healthy throws (after: they are kept relative to it, so a later acceptance moves
+    # the level by what it adds); the marks of the bolts and an obstacle (where the switch as it is has them); and
+    # each accepted mode's departures as accepted, for the record.
+    shift: dict[str, float] = field(default_factory=dict)
+    marks: dict[str, float] = field(default_factory=dict)
+    accepted: dict[str, dict[str, float]] = field(default_factory=dict)
     # Its summaries (level, gains, model_weight), by what they summarise and how many healthy throws there were: a
     # commissioned switch's never change, and every throw's hypotheses read them some 24 times (1 ms of a settled
     # throw's 30). Healthy throws are only ever appended (add), so the count names the throws summarised.
@@ -218,7 +274,8 @@ class Baseline:
 
     def add(self, direction: str, levels: dict[str, float], gains: dict[str, float], model_weight: float) -> None:
         if self.count(direction) < self.needed:
-            self.healthy[direction].append({"levels": levels, "gains": gains, "model_weight": model_weight})
+            relative = {name: value - self.shift.get(name, 0.0) for name, value in levels.items()}
+            self.healthy[direction].append({"levels": relative, "gains": gains, "model_weight": model_weight})
 
     def model_weight(self) -> float:
         """The median over the healthy throws of the nominal fit's MSE over its effective samples."""
@@ -226,32 +283,37 @@ class Baseline:
             np.median([h["model_weight"] for d in DIRECTIONS for h in self.healthy[d]])))
 
     def level(self, direction: str, name: str) -> tuple[float, float]:
-        """Mean and spread of a baselined parameter over the healthy throws of a direction."""
+        """Mean and spread of a baselined parameter over the healthy throws of a direction (with what was accepted)."""
         def compute() -> tuple[float, float]:
             values = np.array([h["levels"][name] for h in self.healthy[direction] if name in h["levels"]])
             if not len(values):
                 return float("nan"), 0.0
             return float(values.mean()), float(values.std(ddof=1)) if len(values) > 1 else 0.0
-        return self._summary(("level", direction, name), self.count(direction), compute)
+        mean, spread_ = self._summary(("level", direction, name), self.count(direction), compute)
+        return mean + self.shift.get(name, 0.0), spread_
 
     def gains(self, direction: str) -> dict[str, float]:
         return dict(self._summary(("gains", direction), self.count(direction), lambda: {
             mode: max(h["gains"].get(mode, 0.0) for h in self.healthy[direction]) for mode in MODE_PARAMETERS}))
 
-    def follow(self, name: str, value: float) -> None:
-        """Move a drifting nuisance's recent level towards a healthy throw's estimate."""
+    def follow(self, name: str, value: float, weight: float = 1.0) -> None:
+        """Move a drifting nuisance's recent level towards a healthy throw's estimate, by FOLLOW times `weight`."""
         previous = self.recent.get(name)
-        self.recent[name] = value if previous is None else previous + FOLLOW * (value - previous)
+        self.recent[name] = value if previous is None else previous + weight * FOLLOW * (value - previous)
 
     def to_dict(self) -> dict:
-        return {"needed": self.needed, "healthy": self.healthy, "recent": self.recent}
+        return {"needed": self.needed, "healthy": self.healthy, "recent": self.recent, "shift": self.shift,
+                "marks": self.marks, "accepted": self.accepted}
 
     @classmethod
     def from_dict(cls, data: dict) -> Baseline:
         baseline = cls(int(data["needed"]))
         for direction in DIRECTIONS:
             baseline.healthy[direction] = [dict(h) for h in data["healthy"].get(direction, [])]
-        baseline.recent = {k: float(v) for k, v in data.get("recent", {}).items()}
+        for name in ("recent", "shift", "marks"):  # a state saved before they were kept has none
+            setattr(baseline, name, {k: float(v) for k, v in data.get(name, {}).items()})
+        baseline.accepted = {mode: {k: float(v) for k, v in values.items()}
+                             for mode, values in data.get("accepted", {}).items()}
         return baseline
 
 
@@ -286,11 +348,11 @@ def start_angle(t_s: np.ndarray, signals: MotorSignals, direction: str, drive: D
     return float(np.mean(signals.angle_rad - travelled))
 
 
-def settled_mse(previous: ThrowVerdict | None, m: Measurement) -> float | None:
-    """The nominal fit's MSE on the switch's previous throw in this direction, when that throw was healthy and
-    measured the same signals (ThrowEstimator.fit_all: a throw whose nominal fit is within SETTLED of it is
-    settled)."""
-    if previous is None or previous.mode != "nominal":
+def settled_mse(previous: ThrowVerdict | None, m: Measurement, base: frozenset[str]) -> float | None:
+    """The nominal fit's MSE on the switch's previous throw in this direction, when that throw showed nothing new, was
+    fitted with the same present faults (`base`) and measured the same signals (ThrowEstimator.fit_all: a throw whose
+    nominal fit is within SETTLED of it is settled)."""
+    if previous is None or previous.mode != "nominal" or previous.base != base:
         return None
     nominal = previous.estimates["nominal"]
     return nominal.mse if nominal.residual.shape[1] == len(m.signals.names) else None
@@ -359,9 +421,22 @@ class Reported:
     fit_std: dict[str, float] = field(default_factory=dict)  # the fit's own part of std
 
 
+def modes_of(label: str, base: frozenset[str], direction: str) -> frozenset[str]:
+    """The faults a hypothesis (SwitchDiagnoser.specs) is fitted with, on a throw with present faults `base`: those,
+    one more, one fewer, or every mode the throw can show."""
+    if label == "nominal":
+        return base
+    if label.startswith(WITHOUT):
+        return base - {label[len(WITHOUT):]}
+    if label == "joint":
+        return frozenset(candidate_modes(direction))
+    return base | {label}
+
+
 @dataclass(frozen=True)
 class ThrowVerdict:
-    """What one throw says: its most likely mode (or nominal), the evidence for each and every hypothesis."""
+    """What one throw says: the fault it shows beyond the switch's present ones (or nominal), the evidence for each
+    mode and every hypothesis, fitted with the present faults it could see (`base`)."""
 
     index: int
     direction: str
@@ -369,27 +444,32 @@ class ThrowVerdict:
     evidence: dict[str, Evidence]
     estimates: dict[str, Estimate]
     reported: dict[str, Reported]
-    end_rail_m: float  # where the decided hypothesis leaves the blades
-    fitted: dict[str, np.ndarray]  # the decided hypothesis's outputs at the samples after the start
+    end_rail_m: float  # where the hypothesis that explains the throw leaves the blades
+    fitted: dict[str, np.ndarray]  # that hypothesis's outputs at the samples after the start
     provisional: bool
+    base: frozenset[str] = frozenset()
 
     @property
     def strength(self) -> float:
         return self.evidence[self.mode].ratio if self.mode in self.evidence else 0.0
 
+    def modes_of(self, label: str) -> frozenset[str]:
+        """The faults a hypothesis of this throw was fitted with."""
+        return modes_of(label, self.base, self.direction)
+
     def kept(self) -> ThrowVerdict:
         """The verdict as its switch keeps it for the next throws (their warm starts, the slopes they borrow, what
         settles them, evidence, reports): without the fits' residuals and the fitted outputs, which no later throw
-        reads, and with slopes only after a throw decided healthy, the only ones a later throw borrows (a settled
-        throw follows a healthy one: ThrowEstimator.fit_all). Kept whole, a verdict held 115 kB."""
+        reads, and with slopes only after a throw that showed nothing new, the only ones a later throw borrows (a
+        settled throw follows such a one: ThrowEstimator.fit_all). Kept whole, a verdict held 115 kB."""
         return replace(self, estimates={mode: e.kept(slopes=self.mode == "nominal") for mode, e in self.estimates.items()},
                        fitted={})
 
-    def tracked(self) -> ThrowVerdict:
-        """What combining the decided fault over its throws reads of this one (SwitchDiagnoser.combine): its index,
-        direction, mode and that mode's report."""
-        return replace(self, evidence={}, estimates={}, fitted={},
-                       reported={mode: r for mode, r in self.reported.items() if mode == self.mode})
+    def tracked(self, mode: str) -> ThrowVerdict:
+        """What combining a fault over its throws reads of this one (SwitchDiagnoser.combine): its index, direction
+        and the fault's report."""
+        return replace(self, mode=mode, evidence={}, estimates={}, fitted={},
+                       reported={name: r for name, r in self.reported.items() if name == mode})
 
 
 @dataclass(frozen=True)
@@ -406,23 +486,21 @@ class Combined:
 
 @dataclass(frozen=True)
 class Outcome:
-    """The switch's decision after a throw, why, this throw's verdict, the decided fault's combined size and
-    the switch's health over its throws."""
+    """The switch's decision after a throw (its newest present fault, or nominal), why, this throw's verdict, the
+    newest fault's combined size, the switch's health, every present fault and each one's combined size."""
 
     decision: str
     reason: str | None
     verdict: ThrowVerdict | None
     estimate: Combined | None
     health: Health | None = None
-
-
-def observable(mode: str, direction: str) -> bool:
-    """A bolt shows only in the throws it drives; every other mode in both directions."""
-    return mode not in DRIVING_BOLT.values() or DRIVING_BOLT[direction] == mode
+    faults: tuple[str, ...] = ()
+    estimates: dict[str, Combined] = field(default_factory=dict)
+    standing: str | None = None  # said once: the switch cannot be commissioned as healthy, and why
 
 
 class SwitchDiagnoser:
-    """Diagnoses one switch throw by throw; holds its baseline, latest verdicts and the decided fault's history."""
+    """Diagnoses one switch throw by throw; holds its baseline, present faults, latest verdicts and health."""
 
     def __init__(self, estimator: ThrowEstimator, prior: Population, errors: ErrorModel | None = None,
                  baseline: Baseline | None = None, limits: dict[str, float] | None = None):
@@ -434,24 +512,87 @@ class SwitchDiagnoser:
         self.health.model_error = {name: self.errors.common(name, self.health.limits[name]) for name in TRACKED}
         self.latest: dict[str, ThrowVerdict] = {}
         self.rail_m: float | None = None  # blades' position after the last diagnosed throw
-        self.track: deque[ThrowVerdict] = deque(maxlen=TRACKED_THROWS)  # throws since the decided fault appeared
+        self.faults: dict[str, Fault] = {}  # the present faults, by mode
+        self.undecided: Undecided | None = None
         self.evidence: dict[str, list[Evidence]] = {}  # per mode, from the latest throws that saw it, latest first
+        self.standing: str | None = None  # why the switch cannot be commissioned as healthy, once said
+        self._unchanged = dict.fromkeys(DIRECTIONS, 0)  # throws each way with the same faults, uncommissioned
+        # an uncommissioned switch's latest throws each way that showed nothing new beside its present faults: what
+        # its baseline becomes if an operator accepts it as it is (Baseline.add's records)
+        self.candidates: dict[str, list[dict]] = {d: [] for d in DIRECTIONS}
         self.drive = estimator.reduced.params.plant.drive
 
     # -- commissioning ------------------------------------------------------------------------
     def restart_commissioning(self) -> None:
-        """After maintenance: forget the baseline and the switch's history; learn it again."""
+        """After maintenance: forget the baseline, what was accepted and the switch's history; learn it again."""
         self.baseline = Baseline(self.baseline.needed)
+        self._forget()
+
+    def _forget(self) -> None:
         self.latest.clear()
-        self.track.clear()
+        self.faults.clear()
         self.evidence.clear()
+        self.undecided = None
+        self.standing = None
+        self._unchanged = dict.fromkeys(DIRECTIONS, 0)
+        self.candidates = {d: [] for d in DIRECTIONS}
         self.health.reset()
+
+    def accept(self) -> dict[str, dict[str, float]]:
+        """Take the switch as it now is as its own (`railswitch commission SW --accept`): each present fault's level
+        becomes part of its baseline (a missing bearing's and the point machine's friction as the baselined levels'
+        shift, a bolt's or an obstacle's parameters as its marks) and is recorded as accepted; health starts afresh
+        from there, and more of the same is a fault again. An uncommissioned switch is commissioned from its latest
+        throws that showed nothing new beside those faults (`candidates`: also those that fitted a fault about as
+        well as a healthy switch, which its commissioning did not count), as far as there are enough of them, and
+        from its next throws for the rest. Returns what was accepted (departures, as reported)."""
+        accepted = {}
+        provisional = not self.baseline.complete
+        for mode, fault in self.faults.items():
+            combined = self._combined(mode)
+            accepted[mode] = (combined.params if combined is not None
+                              else self._departures(mode, fault.values, self.latest_direction(mode)))
+            if mode == "missing_bearing":
+                b0 = self.level(self.latest_direction(mode), "bearing_friction")
+                self._shift("bearing_friction", fault.values["bearing_friction"] - b0)
+            elif mode == "drive_friction":
+                self._shift("motor.coulomb_friction_nm", fault.values["drive_friction_nm"])
+            else:
+                self.baseline.marks.update({name: fault.values[name] for name in MODE_PARAMETERS[mode]})
+            previous = self.baseline.accepted.get(mode, {})  # departures from what was accepted before add up
+            self.baseline.accepted[mode] = {name: value + (previous.get(name, 0.0) if name != "obstacle_position"
+                                                           else 0.0) for name, value in accepted[mode].items()}
+        candidates = self.candidates
+        if not accepted and not (provisional and any(candidates.values())):
+            return accepted
+        if provisional:  # its levels are the switch's as it is, kept relative to the shift (Baseline.add)
+            if accepted:  # healthy throws counted before were judged without what is now accepted
+                self.baseline.healthy = {d: [] for d in DIRECTIONS}
+            for direction in DIRECTIONS:
+                for record in candidates[direction]:
+                    self.baseline.add(direction, **record)
+            chairs = [r["levels"][DRIFTING] for d in DIRECTIONS for r in candidates[d]]
+            if chairs:
+                self.baseline.recent[DRIFTING] = float(np.mean(chairs))
+        self._forget()
+        return accepted
+
+    def _shift(self, name: str, by: float) -> None:
+        self.baseline.shift[name] = self.baseline.shift.get(name, 0.0) + by
+
+    def latest_direction(self, mode: str) -> str:
+        """A direction whose throws see `mode` (the bolt's own; else either)."""
+        return next(d for d in DIRECTIONS if observable(mode, d))
 
     def _prior(self, direction: str, name: str) -> tuple[float, float]:
         """Mean and standard deviation a baselined parameter is expected at: the switch's own once commissioned
-        (the population's, on log(value) for those in LOG_PRIOR, before)."""
+        (the population's, on log(value) for those in LOG_PRIOR, before), with what was accepted."""
         if not self.baseline.complete:
-            return self.prior.prior[name]
+            mean, std = self.prior.prior[name]
+            shift = self.baseline.shift.get(name, 0.0)
+            if shift and name in LOG_PRIOR:
+                return float(np.log(max(np.exp(mean) + shift, 1e-300))), std
+            return mean + shift, std
         mean, spread_ = self.baseline.level(direction, name)
         return mean, max(spread_, BASELINE_FLOOR[name])
 
@@ -465,11 +606,11 @@ class SwitchDiagnoser:
         return (DRIFTING,) if self.baseline.complete else LOG_PRIOR
 
     def _bounds(self, direction: str, name: str, drift: tuple[float, float] | None) -> tuple[float, float]:
-        """Where a nuisance or baselined parameter may go at all: the population's credible range, or
-        BOUND_SIGMAS of the switch's own baseline once commissioned. The chairs, followed once commissioned
-        (`drift`: their prior, _drift_prior), may also go BOUND_SIGMAS of their drift beyond their recent level
-        (within the plant's range): chairs that dry out slowly leave the population's range, and there their
-        drying must not become a fault."""
+        """Where a nuisance or baselined parameter may go at all: the population's credible range (shifted by what was
+        accepted), or BOUND_SIGMAS of the switch's own baseline once commissioned. The chairs, followed once
+        commissioned (`drift`: their prior, _drift_prior), may also go BOUND_SIGMAS of their drift beyond their
+        recent level (within the plant's range): chairs that dry out slowly leave the population's range, and there
+        their drying must not become a fault."""
         if name == DRIFTING and drift is not None:
             low, high = self.prior.bounds[name]
             physical = PLANT_PARAMETERS[name]
@@ -477,7 +618,9 @@ class SwitchDiagnoser:
             return (max(min(low, float(np.exp(mean - BOUND_SIGMAS * std))), physical.low),
                     min(max(high, float(np.exp(mean + BOUND_SIGMAS * std))), physical.high))
         if name not in BASELINED or not self.baseline.complete:
-            return self.prior.bounds[name]
+            low, high = self.prior.bounds[name]
+            shift = self.baseline.shift.get(name, 0.0) if name in BASELINED else 0.0
+            return low + shift, high + shift
         mean, std = self._prior(direction, name)
         return mean - BOUND_SIGMAS * std, mean + BOUND_SIGMAS * std
 
@@ -494,11 +637,14 @@ class SwitchDiagnoser:
         return self.baseline.gains(direction) if self.baseline.complete else self.prior.gains.get(direction, {})
 
     def outside_population(self) -> list[str]:
-        """Baselined parameters whose commissioned level lies outside the population's credible range."""
+        """Baselined parameters whose commissioned level lies outside the population's credible range (those an
+        operator accepted aside)."""
         if not self.baseline.complete:
             return []
         out = []
         for name in BASELINED:
+            if self.baseline.shift.get(name):
+                continue
             mean, std = self.prior.prior[name]
             for d in DIRECTIONS:
                 level = self.baseline.level(d, name)[0]
@@ -509,195 +655,459 @@ class SwitchDiagnoser:
         return out
 
     # -- hypotheses ---------------------------------------------------------------------------
+    def present(self, direction: str) -> frozenset[str]:
+        """The present faults a throw in `direction` can see (a bolt only in the throws it drives)."""
+        return frozenset(mode for mode in self.faults if observable(mode, direction))
+
     def specs(self, direction: str) -> dict[str, HypothesisSpec]:
-        """The hypotheses a throw in `direction` can show, with what each frees, holds and expects."""
+        """The hypotheses a throw in `direction` is fitted under: the switch as it now is ("nominal": its present
+        faults that the throw can see, their parameters free), the same plus each fault mode it does not have, the
+        same without each present fault (WITHOUT + mode: a repair), and every mode at once ("joint")."""
+        base = self.present(direction)
+        out = {"nominal": self._spec("nominal", direction, base)}
+        for mode in candidate_modes(direction):
+            if mode not in base:
+                out[mode] = self._spec(mode, direction, base | {mode}, grid_of=mode)
+        for mode in sorted(base):
+            out[WITHOUT + mode] = self._spec(WITHOUT + mode, direction, base - {mode})
+        out["joint"] = self._spec("joint", direction, frozenset(candidate_modes(direction)))
+        return out
+
+    def _spec(self, label: str, direction: str, modes: frozenset[str], grid_of: str | None = None) -> HypothesisSpec:
+        """The hypothesis that the switch has the faults `modes` (their parameters free, within their ranges) and no
+        others (held at their marks: a bolt's or an obstacle's reference, nominal unless accepted); the other
+        direction's bolt held at its latest estimate. The switch's own parameters are free with their priors, but a
+        baselined one a fault adds to: a missing bearing frees the bearing friction beyond its baseline, without
+        its prior; drive friction holds the point machine's own friction at its baseline and frees the fault's.
+        `grid_of`: the mode whose grid of starting points (and settled grid, and scan) the hypothesis takes."""
         bolt = DRIVING_BOLT[direction]
-        other = DRIVING_BOLT[OTHER_DIRECTION[direction]]
-        held = {MODE_PARAMETERS[other][0]: self.background(direction)}
+        bolt_name = MODE_PARAMETERS[bolt][0]
+        other_name = MODE_PARAMETERS[DRIVING_BOLT[OTHER_DIRECTION[direction]]][0]
         drift = self._drift_prior()
         bounds = {name: self._bounds(direction, name, drift) for name in (*FOLLOWED, *SATURATION, *BASELINED)}
         prior = {**{name: self.prior.prior[name] for name in (*FOLLOWED, *SATURATION)},
                  **{name: self._prior(direction, name) for name in BASELINED}}
         if drift is not None:
             prior[DRIFTING] = drift
-        healthy = {name: bounds[name] for name in (*FOLLOWED, *BASELINED)}
-        logs = self._log_prior()
-        b0, c0 = self.level(direction, "bearing_friction"), self.level(direction, "motor.coulomb_friction_nm")
         fault = {n: (p.low, p.high) for n, p in FAULT_PARAMETERS.items()}
-        bearing_fault = (b0 + fault["bearing_friction"][0], b0 + fault["bearing_friction"][1])
-        without = {name: prior[name] for name in (*FOLLOWED, *SATURATION)}  # priors when a baselined one is the fault
-        saturation = {name: bounds[name] for name in SATURATION}
-        bolt_name = MODE_PARAMETERS[bolt][0]
-        obstacle = {n: fault[n] for n in MODE_PARAMETERS["obstacle"]}
-        machine = {"drive_friction_nm": fault["drive_friction_nm"]}
-        bearing_prior = {**without, "bearing_friction": prior["bearing_friction"]}
-        return {
-            "nominal": HypothesisSpec("nominal", healthy, held, prior=prior, log_prior=logs),
-            bolt: HypothesisSpec(bolt, {bolt_name: fault[bolt_name], **healthy}, held,
-                                 tuple({bolt_name: float(b)} for b in BOLT_GRID), prior, logs,
-                                 settled_grid=({bolt_name: 0.0},), scanned=(bolt_name,)),
-            "missing_bearing": HypothesisSpec(
-                "missing_bearing", {**healthy, "bearing_friction": bearing_fault}, held,
-                tuple({"bearing_friction": b0 + f} for f in (500.0, 2e3, 5e3, 1e4)),
-                {**without, "motor.coulomb_friction_nm": prior["motor.coulomb_friction_nm"]}, logs, settled_grid=()),
-            "obstacle": HypothesisSpec("obstacle", {**obstacle, **healthy, **saturation}, held, OBSTACLE_GRID, prior,
-                                       logs, settled_grid=SMALL_OBSTACLE_GRID),
-            "drive_friction": HypothesisSpec(
-                "drive_friction", {**{n: bounds[n] for n in FOLLOWED}, "bearing_friction": bounds["bearing_friction"],
-                                   **machine}, {**held, "motor.coulomb_friction_nm": c0},
-                tuple({"drive_friction_nm": f} for f in (0.02, 0.08, 0.2)), bearing_prior, logs, settled_grid=()),
-            "joint": HypothesisSpec(
-                "joint", {bolt_name: fault[bolt_name], **obstacle, **healthy, **saturation,
-                          "bearing_friction": bearing_fault, **machine}, held,
-                prior={**without, "motor.coulomb_friction_nm": prior["motor.coulomb_friction_nm"]}, log_prior=logs),
-        }
+        free = {name: bounds[name] for name in (*FOLLOWED, *BASELINED)}
+        held = {other_name: self.background(direction)}
+        initial = {name: value for mode in modes & self.faults.keys() for name, value in self.faults[mode].values.items()}
+        if bolt in modes:
+            free[bolt_name] = fault[bolt_name]
+        else:
+            held[bolt_name] = self.mark(bolt_name)
+        if "obstacle" in modes:
+            free.update({n: fault[n] for n in MODE_PARAMETERS["obstacle"]})
+            free.update({name: bounds[name] for name in SATURATION})
+        else:
+            held.update({n: self.baseline.marks[n] for n in MODE_PARAMETERS["obstacle"] if n in self.baseline.marks})
+        if "missing_bearing" in modes:
+            b0 = self.level(direction, "bearing_friction")
+            free["bearing_friction"] = (b0 + fault["bearing_friction"][0], b0 + BEARING_REACH * fault["bearing_friction"][1])
+            del prior["bearing_friction"]
+        if "drive_friction" in modes:
+            del free["motor.coulomb_friction_nm"], prior["motor.coulomb_friction_nm"]
+            held["motor.coulomb_friction_nm"] = self.level(direction, "motor.coulomb_friction_nm")
+            free["drive_friction_nm"] = fault["drive_friction_nm"]
+        grid, settled_grid, scanned = (), None, ()
+        if label == "nominal":  # each present fault back at its reference: a start where a repair would leave it (a
+            # bolt set right sat 13 mm from its mark when fitted from its loose 77 mm, a basin the fit could not leave)
+            grid = tuple(self._reference(direction, mode) for mode in sorted(modes))
+        elif grid_of == bolt:
+            grid, settled_grid, scanned = (tuple({bolt_name: float(b)} for b in BOLT_GRID),
+                                           ({bolt_name: self.mark(bolt_name)},), (bolt_name,))
+        elif grid_of == "missing_bearing":
+            b0 = self.level(direction, "bearing_friction")
+            grid, settled_grid = tuple({"bearing_friction": b0 + f} for f in (500.0, 2e3, 5e3, 1e4)), ()
+        elif grid_of == "obstacle":
+            grid, settled_grid = OBSTACLE_GRID, SMALL_OBSTACLE_GRID
+        elif grid_of == "drive_friction":
+            grid, settled_grid = tuple({"drive_friction_nm": f} for f in (0.02, 0.08, 0.2)), ()
+        return HypothesisSpec(label, free, held, grid, prior, self._log_prior(), settled_grid=settled_grid,
+                              scanned=scanned, initial=initial)
+
+    def _reference(self, direction: str, mode: str) -> dict[str, float]:
+        """A mode's parameters where the switch has no such fault: its baselined level or its marks."""
+        if mode == "missing_bearing":
+            return {"bearing_friction": self.level(direction, "bearing_friction")}
+        if mode == "drive_friction":
+            return {"drive_friction_nm": 0.0}
+        if mode == "obstacle":
+            return {"obstacle_friction": self.mark("obstacle_friction")}
+        return {name: self.mark(name) for name in MODE_PARAMETERS[mode]}
+
+    def mark(self, name: str) -> float:
+        """Where a bolt or an obstacle parameter is when it is no fault: nominal, or where an operator accepted it."""
+        return self.baseline.marks.get(name, FAULT_PARAMETERS[name].nominal)
 
     def background(self, direction: str) -> float:
-        """The other direction's bolt, as the throws that drive it estimated it (nominal when none did)."""
-        other = OTHER_DIRECTION[direction]
-        name = MODE_PARAMETERS[DRIVING_BOLT[other]][0]
-        verdict = self.latest.get(other)
-        if verdict is None or verdict.mode != DRIVING_BOLT[other]:
-            return FAULT_PARAMETERS[name].nominal
-        return verdict.estimates[verdict.mode].values[name]
+        """The other direction's bolt: its present fault's latest estimate, else its mark."""
+        other = DRIVING_BOLT[OTHER_DIRECTION[direction]]
+        name = MODE_PARAMETERS[other][0]
+        present = self.faults.get(other)
+        return present.values[name] if present is not None else self.mark(name)
 
-    def _report(self, direction: str, estimate: Estimate) -> Reported:
-        """Fault parameters relative to the baseline, each with the model's error added to the fit's."""
-        b0 = self.level(direction, "bearing_friction")
+    def _departures(self, mode: str, values: dict[str, float], direction: str) -> dict[str, float]:
+        """A mode's parameters as departures from the switch's baseline and marks (the model's values, uncorrected)."""
+        out = {}
+        for name in MODE_PARAMETERS[mode]:
+            if name == "bearing_friction":
+                out[name] = values[name] - self.level(direction, name)
+            elif name == "obstacle_position" or name == "drive_friction_nm":
+                out[name] = values[name]
+            else:
+                out[name] = values[name] - self.mark(name)
+        return out
+
+    def _report(self, direction: str, estimate: Estimate, modes: frozenset[str] | tuple[str, ...],
+                label: str | None = None) -> Reported:
+        """The parameters of `modes` relative to the baseline, each with the model's error added to the fit's."""
         params, fit_std = {}, {}
-        for name in FAULT_PARAMETERS:
-            if name in estimate.params and (estimate.mode == "joint" or FAULT_PARAMETERS[name].mode == estimate.mode):
-                raw = estimate.values[name] - (b0 if name == "bearing_friction" else 0.0)
-                params[name] = self.errors.corrected(name, raw)
-                fit_std[name] = estimate.std[name] / self.errors.slope(name)
+        for mode in modes:
+            raw = self._departures(mode, estimate.values, direction)
+            for name in MODE_PARAMETERS[mode]:
+                if name in estimate.params:
+                    params[name] = self.errors.corrected(name, raw[name])
+                    fit_std[name] = estimate.std[name] / self.errors.slope(name)
         std = {name: float(np.hypot(fit_std[name], self.errors.std(name, params[name]))) for name in params}
         nuisance = {name: estimate.values[name] for name in NUISANCES}
-        return Reported(estimate.mode, params, std, estimate.mse, (), nuisance, fit_std)
+        return Reported(label or estimate.mode, params, std, estimate.mse, (), nuisance, fit_std)
 
     def _unobservable(self, direction: str, mse: float) -> Reported:
         """The bolt this throw cannot see: its held value, flagged, no std (its hypothesis is the nominal one)."""
         other = DRIVING_BOLT[OTHER_DIRECTION[direction]]
         name = MODE_PARAMETERS[other][0]
-        return Reported(other, {name: self.background(direction)}, {}, mse, (name,))
+        return Reported(other, {name: self.background(direction) - self.mark(name)}, {}, mse, (name,))
+
+    def _warm(self, previous: ThrowVerdict | None, specs: dict[str, HypothesisSpec],
+              direction: str) -> dict[str, dict[str, float]] | None:
+        """Each hypothesis's start from the switch's previous throw in this direction: that throw's fit of the same
+        faults where it made one (a fault just confirmed was that throw's added mode), else its fit of the same label;
+        a parameter that fit did not free starts where the hypothesis starts it (HypothesisSpec.initial: a present
+        fault's latest estimate)."""
+        if previous is None:
+            return None
+        base = self.present(direction)
+        by_modes = {previous.modes_of(label): e for label, e in previous.estimates.items()}
+        out = {}
+        for label, spec in specs.items():
+            source = by_modes.get(modes_of(label, base, direction), previous.estimates.get(label))
+            if source is not None:
+                out[label] = {**source.values, **{name: value for name, value in spec.initial.items()
+                                                  if name in spec.free and name not in source.params}}
+        return out
 
     # -- one throw ----------------------------------------------------------------------------
     def diagnose(self, throw: ThrowInput) -> Outcome:
-        """The switch's decision after this throw (combining both directions), with this throw's verdict."""
+        """The switch's present faults after this throw, with this throw's verdict."""
         why = problem(throw)
         if why is not None:
             self.rail_m = None  # unknown where the blades are: assume the next throw starts closed
-            return Outcome("unknown", why, None, None)
-        start_rail = self.rail_m if self.rail_m is not None else CLOSED_START_M[throw.direction]
+            return Outcome("unknown", why, None, None, faults=tuple(sorted(self.faults)),
+                           estimates=self._estimates())
+        direction = throw.direction
+        start_rail = self.rail_m if self.rail_m is not None else CLOSED_START_M[direction]
         m = measurement(throw, start_rail, self.drive)
         provisional = not self.baseline.complete
         weight = self.prior.model_weight if provisional else self.baseline.model_weight()
-        gains = self._gains(throw.direction)
-        previous = self.latest.get(throw.direction)
+        gains = self._gains(direction)
+        previous = self.latest.get(direction)
+        base = self.present(direction)
         prepared = self.estimator.prepare(m)  # once for the fits and the fitted outputs
+        specs = self.specs(direction)
         estimates = self.estimator.fit_all(
-            prepared, self.specs(throw.direction), weight,
-            decide=lambda fits: judge(throw.direction, fits, gains, self.evidence, self.negligible(fits))[0],
-            warm=None if previous is None else {mode: e.values for mode, e in previous.estimates.items()},
-            settled_mse=settled_mse(previous, m),
+            prepared, specs, weight,
+            decide=lambda fits: judge(direction, fits, gains, self.evidence, self.negligible(fits))[0],
+            warm=self._warm(previous, specs, direction),
+            settled_mse=settled_mse(previous, m, base),
             slopes=None if previous is None else {mode: e.slopes for mode, e in previous.estimates.items()
                                                 if e.slopes is not None})
-        mode, found = judge(throw.direction, estimates, gains, self.evidence, self.negligible(estimates))
+        negligible = self.negligible(estimates)
+        best, found = judge(direction, estimates, gains, self.evidence, negligible)
+        judged = self._judged(direction, start_rail)
         for name, seen in found.items():
-            self.evidence[name] = [seen, *self.evidence.get(name, [])][:EVIDENCE_THROWS]
-        fitted = self.estimator.simulate(prepared, estimates[mode].values)
-        reported = {name: self._report(throw.direction, e) for name, e in estimates.items()}
-        hidden = self._unobservable(throw.direction, estimates["nominal"].mse)
-        reported[hidden.mode] = hidden
-        verdict = ThrowVerdict(throw.index, throw.direction, mode, found, estimates, reported,
-                               float(fitted["rail_position_m"][-1]), fitted, provisional)
-        self.latest[throw.direction] = verdict.kept()
+            if name in judged:
+                self.evidence[name] = [seen, *self.evidence.get(name, [])][:EVIDENCE_THROWS]
+        detected = sorted((mode for mode, e in found.items() if e.detected and mode not in negligible and mode in judged),
+                          key=lambda mode: estimates[mode].objective)
+        shown = best if best in judged else "nominal"
+        explained = estimates[best] if best != "nominal" else estimates["nominal"]  # where it leaves the blades
+        fitted = self.estimator.simulate(prepared, explained.values)
+        reported = self._reports(direction, estimates, base)
+        verdict = ThrowVerdict(throw.index, direction, shown, found, estimates, reported,
+                               float(fitted["rail_position_m"][-1]), fitted, provisional, base)
+        # A throw that repairs a fault adds none: its other modes were tested against the switch with that fault.
+        repaired = self._repairs(direction, estimates, reported, gains, shown, judged)
+        added = None if repaired else self._additions(verdict, detected)
+        self.latest[direction] = verdict.kept()
         self.rail_m = verdict.end_rail_m
-        if mode == "nominal":
-            nominal = estimates["nominal"]
-            self.baseline.follow(DRIFTING, nominal.values[DRIFTING])
-            if provisional:
-                levels = {name: nominal.values[name] for name in (*BASELINED, DRIFTING)}
-                self.baseline.add(throw.direction, levels, healthy_gains(estimates), nominal.mse / nominal.effective_samples)
-        decision, reason = self.combined()
+        if "missing_bearing" in judged:
+            self._follow_chairs(verdict)
+        unchanged = shown == "nominal" and self.undecided is None and not repaired and added is None
+        suspected = (sorted(mode for mode, e in found.items() if e.suspected and mode not in negligible)
+                     if m.signals.names == ("current_a",) else [])
+        if added is not None or repaired:
+            self.candidates = {d: [] for d in DIRECTIONS}
+        if provisional and unchanged:
+            record = self._commissioning_record(direction, estimates)
+            if not self.faults and not suspected:
+                self.baseline.add(direction, **record)
+            else:  # the switch as it is, should an operator accept it
+                self.candidates[direction] = [*self.candidates[direction], record][-self.baseline.needed:]
+        for mode, fault in self.faults.items():
+            if mode in judged and mode in reported:
+                fault.track.append(verdict.tracked(mode))
+        standing = self._standing(direction, provisional, bool(added or repaired), suspected)
         if provisional and self.baseline.complete:  # from now on its estimates depart from its own baseline
             self.health.reset()
             health = self.health.update(throw.index, {})
         else:
-            health = self.health.update(throw.index, self._health_estimates(verdict, decision))
-        return Outcome(decision, self._provisional_note(reason, provisional), verdict, self._follow(decision, verdict),
-                       health)
+            self.health.restart(name for mode in repaired for name in MODE_PARAMETERS[mode] if name in TRACKED)
+            health = self.health.update(throw.index, {name: value for name, value in self._health_estimates(
+                verdict).items() if FAULT_PARAMETERS[name].mode in judged})
+        estimates_now = self._estimates()
+        decision = self.decision()
+        reason = self._reason(repaired, provisional, suspected if provisional and unchanged else [])
+        return Outcome(decision, reason, verdict, estimates_now.get(decision), health, tuple(sorted(self.faults)),
+                       estimates_now, standing)
+
+    def _commissioning_record(self, direction: str, estimates: dict[str, Estimate]) -> dict:
+        """What a throw that showed nothing new teaches of the switch as it is: its baselined levels as the switch as it
+        is fitted them (a missing bearing's friction and drive friction added to the levels they add to), what each
+        fault mode's fit gains on it (a present fault's own: the population's), and its model weight."""
+        base = estimates["nominal"]
+        values = base.values
+        levels = {"bearing_friction": values["bearing_friction"],
+                  "motor.coulomb_friction_nm": values["motor.coulomb_friction_nm"] + values["drive_friction_nm"],
+                  DRIFTING: values[DRIFTING]}
+        gains = {**self.prior.gains.get(direction, {}), **healthy_gains(estimates)}
+        return {"levels": levels, "gains": gains, "model_weight": base.mse / base.effective_samples}
+
+    def _reports(self, direction: str, estimates: dict[str, Estimate], base: frozenset[str]) -> dict[str, Reported]:
+        """Each hypothesis as the diagnosis reports it: a present fault from the switch as it is, a mode it does not
+        have from that mode's own fit (its parameters only), the switch as it is with its present faults, without
+        each of them, every mode at once, and the bolt this throw cannot see (held)."""
+        reported = {}
+        for label, estimate in estimates.items():
+            if label == "joint":
+                reported[label] = self._report(direction, estimate, candidate_modes(direction))
+            elif label == "nominal":
+                reported[label] = self._report(direction, estimate, base)
+                reported.update({mode: self._report(direction, estimate, (mode,), mode) for mode in base})
+            elif label.startswith(WITHOUT):
+                reported[label] = self._report(direction, estimate, (), label[len(WITHOUT):])
+            else:
+                reported[label] = self._report(direction, estimate, (label,))
+        hidden = self._unobservable(direction, estimates["nominal"].mse)
+        reported[hidden.mode] = hidden
+        return reported
+
+    def _judged(self, direction: str, start_rail_m: float) -> frozenset[str]:
+        """The modes a throw's evidence counts for: every mode it can show, but only its own bolt when it starts with
+        the blades short of the stock rail (a loose bolt of the other direction left them there). Resting short, the
+        blades lean on that bolt's face, and in the plant they follow it back from the throw's first instant; the
+        reduced model, whose chairs hold no static friction, has them elsewhere when this throw's bolt meets the
+        adjuster, and misfits the current there twenty times the noise (poly, a 50 mm left bolt): fitted anyway, such
+        a throw read a missing bearing of 3300 N·s/m as 400 to 700 and drive friction where there was none."""
+        modes = frozenset(candidate_modes(direction))
+        if abs(start_rail_m - CLOSED_START_M[direction]) > SHORT_START_M:
+            return modes & {DRIVING_BOLT[direction]}
+        return modes
+
+    def _repairs(self, direction: str, estimates: dict[str, Estimate], reported: dict[str, Reported],
+                 gains: dict[str, float], shown: str, judged: frozenset[str]) -> list[str]:
+        """The present faults this throw shows gone (fault_set.repaired); the others take this throw's estimates. A
+        throw that shows a new fault (`shown`) bends the switch as it is (a bolt appearing put a present bearing of
+        4000 N·s/m at 900 in it): there a fault is repaired only by a sudden drop of its size in the fit that adds the
+        new fault, and none takes this throw's estimates."""
+        gone = []
+        for mode in sorted(self.present(direction) & judged):
+            fault = self.faults[mode]
+            now = presence(estimates, mode, gains.get(mode, 0.0))
+            report = reported[mode] if shown == "nominal" else self._report(direction, estimates[shown], (mode,))
+            size = size_of(mode, report.params)
+            size_std = float(np.hypot(report.fit_std.get(MAGNITUDE[mode], 0.0), self._reference_std(direction, mode)))
+            if repaired(fault, now, size, size_std, small(mode, report.params, self.loaded(mode)),
+                        sudden_only=shown != "nominal"):
+                gone.append(mode)
+                del self.faults[mode]
+                continue
+            if shown != "nominal" or fault.dropped:  # a drop to confirm is judged against the size before it
+                continue
+            fault.presence = [now, *fault.presence][:EVIDENCE_THROWS - 1]
+            fault.values = {name: estimates["nominal"].values[name] for name in MODE_PARAMETERS[mode]}
+            fault.size, fault.size_std = size, size_std
+        if "missing_bearing" in gone and DRIFTING in self.baseline.recent:
+            # the chairs' level followed part of the bearing while it grew unseen; the throw without it says where
+            # they are
+            self.baseline.recent[DRIFTING] = estimates[WITHOUT + "missing_bearing"].values[DRIFTING]
+        if gone:
+            self.evidence.clear()  # the switch as it is changed: earlier throws' evidence was against another
+        return gone
+
+    def _reference_std(self, direction: str, mode: str) -> float:
+        """How far a healthy switch's own level of what `mode` adds to may lie from where it is held (the baselined
+        level's spread, in the fault parameter's unit): a missing bearing and drive friction are departures from it,
+        so one repaired reads within that of zero (a repaired drive friction of nn read 0.005 N·m, its fit's std a
+        tenth of that, the commissioned level's floor 0.006)."""
+        name = {"missing_bearing": "bearing_friction", "drive_friction": "motor.coulomb_friction_nm"}.get(mode)
+        if name is None:
+            return 0.0
+        std = self._prior(direction, name)[1]
+        return std * self.level(direction, name) if name in self._log_prior() else std
+
+    def _additions(self, verdict: ThrowVerdict, detected: list[str]) -> str | None:
+        """The fault this throw confirms (fault_set: the best detected, unless this direction cannot tell it from
+        another; an undecided pair settled by a throw of the other direction), added to the present ones."""
+        direction, estimates = verdict.direction, verdict.estimates
+        undecided, self.undecided = self.undecided, None
+        if undecided is not None and undecided.direction != direction:
+            mode = decide_between(undecided, direction, detected)
+            values = estimates[mode].values if mode in detected else undecided.values.get(mode, {})
+        elif detected:
+            mode = detected[0]
+            alike = tuple(other for other in detected[1:] if not separable(estimates, mode, other))
+            if alike:
+                self.undecided = Undecided((mode, *alike), direction, verdict.index,
+                                           {m: estimates[m].values for m in (mode, *alike)})
+                return None
+            values = estimates[mode].values
+        else:
+            return None
+        if mode is None:
+            return None
+        report = verdict.reported.get(mode)
+        size = size_of(mode, report.params) if report is not None and not report.unobservable else 0.0
+        self.faults[mode] = Fault(mode, verdict.index, {name: values[name] for name in MODE_PARAMETERS[mode]}, size,
+                                  0.0 if report is None else report.fit_std.get(MAGNITUDE[mode], 0.0),
+                                  presence=list(self.evidence.get(mode, [])[:EVIDENCE_THROWS - 1]),
+                                  track=deque(maxlen=TRACKED_THROWS))
+        self.evidence.clear()  # the switch as it is changed: earlier throws' evidence was against another
+        return mode
+
+    def _follow_chairs(self, verdict: ThrowVerdict) -> None:
+        """After a throw that showed nothing new, the chairs' recent level moves towards the switch as it is fitted
+        there (Baseline.follow), by how much the throw's own samples say the change is the chairs' rather than a
+        bearing's. A throw tells the two frictions' sum well and their split only a little (viscous losses grow with
+        speed, Coulomb friction does not): a bearing's hypothesis that explains the throw's samples better than the
+        chairs (the samples' part S of its statistic, chi-square-like, about 1 when nothing tells them apart; not what
+        it saves of the chairs' prior, which is the lag itself) is a likelihood ratio of exp(S / 2) that what moved is
+        a bearing, and the level follows by exp(-(S - 1) / 2) of its step at most. Chairs drying out are followed (the
+        split leans their way, or is even); a bearing drying out slowly, throw by throw, is not absorbed, so the
+        nominal fit must pay for it in the chairs' prior and the bearing is found (a step the nominal fit of such a
+        throw took whole, with the bearing left at its baseline, until it read as 70 % of its limit). A present missing
+        bearing is fitted beside the chairs, and its throws do not move them (_unseen_chairs)."""
+        if verdict.mode != "nominal" or "missing_bearing" in verdict.base:
+            return
+        bearing = verdict.evidence.get("missing_bearing")
+        weight = 1.0 if bearing is None else float(np.exp(-max(bearing.own - 1.0, 0.0) / 2.0))
+        self.baseline.follow(DRIFTING, verdict.estimates["nominal"].values[DRIFTING], weight)
+
+    def _standing(self, direction: str, provisional: bool, changed: bool, suspected: list[str]) -> str | None:
+        """Once an uncommissioned switch has shown the same present faults (or, with none, throws that fit a fault
+        about as well as a healthy switch) for as many throws each way as commissioning needs, it cannot be
+        commissioned as healthy: say so once, in words an operator understands."""
+        stalled = self.faults and not changed or not self.faults and suspected
+        if not provisional or not stalled:
+            self._unchanged = dict.fromkeys(DIRECTIONS, 0)
+            return None
+        self._unchanged[direction] += 1
+        if self.standing is not None or min(self._unchanged.values()) < self.baseline.needed:
+            return None
+        chair = PLANT_PARAMETERS["rail.chair_viscous_n_s_m"].nominal * CHAIR_TO_BEARING
+        machine = float(np.exp(self.prior.prior["motor.coulomb_friction_nm"][0]))
+        parts = []
+        for mode in sorted(self.faults):
+            combined = self._combined(mode)
+            departures = combined.params if combined is not None else self._departures(
+                mode, self.faults[mode].values, self.latest_direction(mode))
+            parts.append(f"{describe_standing(mode, departures, chair, machine)}, reads as {mode}")
+        if not parts:
+            parts.append("its throws fit " + " or ".join(suspected) + " about as well as a healthy switch")
+        self.standing = "cannot be commissioned as healthy: " + "; ".join(parts)
+        return self.standing
 
     def negligible(self, estimates: dict[str, Estimate]) -> list[str]:
-        """The bolt modes whose fitted offset (less the model's bias) is within BOLT_TOLERANCE: an adjustment."""
+        """The modes whose fitted size is no fault (small): a bolt's or an obstacle's hypothesis fitted that small."""
         out = []
-        for mode in DRIVING_BOLT.values():
+        for mode in (*DRIVING_BOLT.values(), "obstacle"):
             if mode in estimates:
-                name = MODE_PARAMETERS[mode][0]
-                if abs(self.errors.corrected(name, estimates[mode].values[name])) < BOLT_TOLERANCE:
+                values = estimates[mode].values
+                departures = {name: self.errors.corrected(name, values[name] - self.mark(name))
+                              for name in MODE_PARAMETERS[mode]}
+                if small(mode, departures, self.loaded(mode)):
                     out.append(mode)
         return out
 
-    def _health_estimates(self, verdict: ThrowVerdict, decision: str) -> dict[str, tuple[float, float]]:
-        """Each tracked parameter as its own hypothesis estimated it in this throw, if the throw could see it and
-        neither the throw nor the switch (over both directions) was decided as another fault: another fault's
-        hypothesis bends to the decided one's effect (a bearing grown past detection shows as drive friction in the
-        drive-friction hypothesis, which cannot free the bearing that far; a loose bolt as bearing friction).
+    def loaded(self, mode: str) -> bool:
+        """Whether the switch has a present fault besides `mode`."""
+        return bool(self.faults.keys() - {mode})
 
-        Once commissioned, the bearing friction counts the chairs' departure from their commissioned level too
-        (CHAIRS_AS_BEARING): the diagnosis lets the chairs follow the weather throw by throw, which would also let
-        them absorb bearings that dry out slowly, throw by throw, and hide the growth from the trend. Weather then
-        wanders the bearing's level a little (a fifth drier chairs: some 400 N·s/m); a worn bearing shows whole."""
+    def _health_estimates(self, verdict: ThrowVerdict) -> dict[str, tuple[float, float]]:
+        """Each tracked parameter this throw could see, as it estimated it: a present fault's from the switch as it is,
+        another's from its own hypothesis, unless the throw showed a new fault of another mode (whose effect that
+        hypothesis bends to: a bearing grown past detection shows as drive friction in the drive-friction
+        hypothesis, which cannot free the bearing that far; a loose bolt as bearing friction)."""
         out = {}
         for name in TRACKED:
             mode = FAULT_PARAMETERS[name].mode
-            if {verdict.mode, decision} - {"nominal", "unknown", mode}:  # its hypothesis bends to another's effect
+            if not observable(mode, verdict.direction):
+                continue
+            if mode not in verdict.base and verdict.mode not in ("nominal", mode):
                 continue
             reported = verdict.reported.get(mode)
             if reported is not None and name in reported.params and not reported.unobservable:
                 out[name] = (reported.params[name], reported.fit_std[name])
         if "bearing_friction" in out and self.baseline.complete:
             value, std = out["bearing_friction"]
-            chairs = verdict.estimates["missing_bearing"].values[DRIFTING]
+            label = "nominal" if "missing_bearing" in verdict.base else "missing_bearing"
+            chairs = verdict.estimates[label].values[DRIFTING]
             commissioned = self.baseline.level(verdict.direction, DRIFTING)[0]
             chairs_as_bearing = CHAIRS_AS_BEARING * (chairs - commissioned) / self.errors.slope("bearing_friction")
             out["bearing_friction"] = (value + chairs_as_bearing, std)  # corrected as _report corrects the bearing
         return out
 
-    def _provisional_note(self, reason: str | None, provisional: bool) -> str | None:
-        notes = [reason] if reason else []
+    def decision(self) -> str:
+        """The newest present fault (the latest confirmed; the larger evidence among those confirmed together), or
+        nominal."""
+        if not self.faults:
+            return "nominal"
+        return max(self.faults.values(), key=lambda f: f.since).mode
+
+    def _reason(self, repaired: list[str], provisional: bool, suspected: list[str]) -> str | None:
+        """The present faults and since when, a repair, an undecided pair, how far commissioning is (and why a throw
+        did not count), why the switch cannot be commissioned, a baseline outside the population."""
+        notes = []
+        if self.faults:
+            notes.append("present: " + ", ".join(f"{mode} since throw {f.since}"
+                                                 for mode, f in sorted(self.faults.items())))
+        if repaired:
+            notes.append("repaired: " + ", ".join(repaired))
+        if self.undecided is not None:
+            notes.append(self.undecided.describe())
         if provisional:
             seen = sum(min(self.baseline.count(d), self.baseline.needed) for d in DIRECTIONS)
             notes.append(f"provisional: commissioning {seen} of {self.baseline.needed * len(DIRECTIONS)}")
+        if suspected:
+            notes.append("not counted: the throw fits " + " or ".join(suspected) + " about as well as a healthy switch")
+        if self.standing is not None and provisional:
+            notes.append(self.standing + " (railswitch commission --accept takes it as the switch's own)")
         outside = self.outside_population()
         if outside:
             notes.append("baseline outside the population: " + ", ".join(outside))
         return "; ".join(notes) or None
 
-    def combined(self) -> tuple[str, str | None]:
-        """Nominal if the latest throw in each direction is; else the fault with the strongest evidence."""
-        faulty = [v for v in self.latest.values() if v.mode != "nominal"]
-        if not faulty:
-            return "nominal", None
-        strongest = max(faulty, key=lambda v: v.strength)
-        others = [f"{v.mode} ({v.direction})" for v in faulty if v is not strongest and v.mode != strongest.mode]
-        reason = f"{strongest.mode} seen in the latest {strongest.direction.replace('_', ' ')} throw"
-        if others:
-            reason += "; also " + ", ".join(others)
-        return strongest.mode, reason
+    # -- a present fault over throws ------------------------------------------------------------
+    def _combined(self, mode: str) -> Combined | None:
+        fault = self.faults.get(mode)
+        if fault is None or not fault.track:
+            return None
+        return self.combine(mode, list(fault.track))
 
-    # -- the decided fault over throws ------------------------------------------------------------
-    def _follow(self, decision: str, verdict: ThrowVerdict) -> Combined | None:
-        """Keep the throws since the decided fault appeared; combine those that can see it."""
-        if decision in ("nominal", "unknown"):
-            self.track.clear()
-            return None
-        if self.track and self.track[0].mode != decision and not any(v.mode == decision for v in self.track):
-            self.track.clear()
-        self.track.append(verdict.tracked())
-        seeing = [v for v in self.track if observable(decision, v.direction) and v.mode == decision]
-        if not seeing:
-            return None
-        return self.combine(decision, seeing)
+    def _estimates(self) -> dict[str, Combined]:
+        """Each present fault's size combined over the throws since it was confirmed that see it."""
+        return {mode: combined for mode in sorted(self.faults) if (combined := self._combined(mode)) is not None}
 
     def combine(self, mode: str, verdicts: list[ThrowVerdict]) -> Combined:
         """A mode's parameters over several throws: the fits weighted by their variances, the model's error
@@ -732,10 +1142,15 @@ class SwitchDiagnoser:
     # -- persistence ------------------------------------------------------------------------------
     def state(self) -> dict:
         """What a restarted diagnoser (or the one that takes the switch over) needs to resume it: its
-        baseline and its health over the throws so far."""
-        return {"baseline": self.baseline.to_dict(), "health": self.health.to_dict()}
+        baseline, its present faults and its health over the throws so far."""
+        return {"baseline": self.baseline.to_dict(), "health": self.health.to_dict(),
+                "faults": [fault.to_dict() for fault in self.faults.values()], "standing": self.standing,
+                "candidates": self.candidates}
 
     def resume(self, state: dict) -> None:
         self.baseline = Baseline.from_dict(state["baseline"])
         if "health" in state:
             self.health.load(state["health"])
+        self.faults = {f["mode"]: Fault.from_dict(f, TRACKED_THROWS) for f in state.get("faults", [])}
+        self.standing = state.get("standing")
+        self.candidates = {d: list(state.get("candidates", {}).get(d, [])) for d in DIRECTIONS}

@@ -217,12 +217,17 @@ class FaultEstimate(Message):
 
 class Commissioning(Message):
     """How far the switch's own baseline is: provisional (judged against the population) until `needed`
-    healthy throws each way have been seen, then commissioned (judged against its own baseline)."""
+    healthy throws each way have been seen, then commissioned (judged against its own baseline). `standing` says
+    why a switch cannot be commissioned as healthy (the conditions it was installed with); `accepted` holds what an
+    operator took as the switch's own (`railswitch commission SW --accept`): per mode, its parameters' departures as
+    accepted, from which its faults are judged since."""
 
     state: Literal["provisional", "commissioned"]
     throws: dict[Direction, Index]
     needed: Annotated[int, Field(ge=1)]
     outside_population: list[str] = []  # baseline parameters far outside the population's spread
+    standing: Annotated[str, Field(max_length=2000)] | None = None
+    accepted: dict[FaultMode, Annotated[dict[str, float], AfterValidator(_check_fault_names)]] = {}
 
 
 class Diagnosis(Message):
@@ -234,12 +239,18 @@ class Diagnosis(Message):
     t_start_ns: TimeNs
     t_end_ns: TimeNs
     model: RailModel
-    decision: Decision
+    decision: Decision  # the newest present fault, nominal, or unknown (the throw could not be diagnosed)
     reason: str | None = None
     hypotheses: list[Hypothesis] = []
     joint: Hypothesis | None = None
     estimate: FaultEstimate | None = None  # the decided fault over the throws that see it
     commissioning: Commissioning | None = None
+    # Every fault believed present, sorted (empty: nominal); each one's size; and the switch as it is without each
+    # present fault this throw could see (how well a repair explains the throw). A payload without `faults` was
+    # written before several faults were told apart: its `decision` was its only fault.
+    faults: list[FaultMode] | None = None
+    estimates: list[FaultEstimate] = []
+    without: list[Hypothesis] = []
     signals: list[Literal["current_a", "angle_rad", "velocity_rad_s"]] = []  # what the throw's fit used
     latency_ms: NonNegative
 
@@ -254,10 +265,13 @@ class Diagnosis(Message):
 
 
 class CommissionCommand(Message):
-    """Restart a switch's commissioning (after maintenance): its baseline is learnt again from the next throws."""
+    """Restart a switch's commissioning (after maintenance): its baseline is learnt again from the next throws. With
+    `accept`, instead take the switch as it now is as its own: its present faults become part of its baseline (a
+    standing condition), and faults are judged from there."""
 
     switch_id: SwitchId
     reason: Annotated[str, Field(max_length=500)] | None = None
+    accept: bool = False
 
 
 MaybeNonNegative = NonNegative | None

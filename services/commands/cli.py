@@ -25,7 +25,7 @@ COMMANDS: dict[str, str] = {  # name (and module) -> help
     "recorder": "record railswitch/** to an MCAP file",
     "replay": "republish a recording's motor, throw and truth messages",
     "watch": "live table of diagnoses and health",
-    "commission": "restart a switch's commissioning after maintenance (its baseline is learnt again)",
+    "commission": "restart a switch's commissioning after maintenance (its baseline is learnt again), or --accept it as it is",
     "historian": "keep every diagnosis and health message in an SQLite file and answer history queries",
     "history": "a switch's diagnoses and health over time, from the historians on the bus or a history file",
     "demo": "router, simulator, diagnoser, recorder and historian with a live table and summary",

@@ -27,24 +27,32 @@ STATE_STYLE = {"ok": "green", "watch": "yellow", "alarm": "bold red"}
 
 
 def key_estimates(diagnosis: Diagnosis) -> str:
-    """The decided mode's estimates with their standard deviations, or the reason for unknown."""
+    """Each present fault's estimates with their standard deviations (the decided one's, from a diagnoser that names
+    one fault), or the reason for unknown."""
     if diagnosis.decision == "unknown":
         return diagnosis.reason or ""
-    estimate = diagnosis.estimate  # the decided fault over the throws that can see it
-    if estimate is None:
-        return ""
-    parts = []
-    for name, value in estimate.params.items():
-        std = estimate.std.get(name)
-        unit = FAULT_PARAMETERS[name].unit
-        parts.append(f"{name} {value:.4g}" + (f" ± {std:.2g}" if std is not None else "") + f" {unit}")
-    return ", ".join(parts) + (f" ({estimate.throws} throws)" if estimate.throws > 1 else "")
+    estimates = diagnosis.estimates or ([diagnosis.estimate] if diagnosis.estimate is not None else [])
+    several = len(estimates) > 1
+    out = []
+    for estimate in estimates:  # each present fault over the throws since it was confirmed that can see it
+        parts = []
+        for name, value in estimate.params.items():
+            std = estimate.std.get(name)
+            unit = FAULT_PARAMETERS[name].unit
+            parts.append(f"{name} {value:.4g}" + (f" ± {std:.2g}" if std is not None else "") + f" {unit}")
+        out.append(", ".join(parts) + (f" ({estimate.throws} throws)" if estimate.throws > 1 else ""))
+    return "; ".join(out) if several else "".join(out)
+
+
+def decision_text(diagnosis: Diagnosis) -> str:
+    """The present faults (several joined by '+'), else the decision."""
+    return " + ".join(diagnosis.faults) if diagnosis.faults else diagnosis.decision
 
 
 def diagnosis_line(diagnosis: Diagnosis) -> str:
     """One line of plain text for logs and pipes."""
     estimates = key_estimates(diagnosis)
-    return (f"{diagnosis.switch_id} throw {diagnosis.throw_index} {diagnosis.direction}: {diagnosis.decision}"
+    return (f"{diagnosis.switch_id} throw {diagnosis.throw_index} {diagnosis.direction}: {decision_text(diagnosis)}"
             f"{' - ' + estimates if estimates else ''} ({diagnosis.latency_ms:.0f} ms)")
 
 
@@ -82,7 +90,7 @@ def diagnosis_table(latest: dict[str, Diagnosis], health: dict[str, SwitchHealth
     for switch_id in sorted(latest.keys() | health.keys()):
         d, h = latest.get(switch_id), health.get(switch_id)
         cells = ["", "", "", "", ""] if d is None else [
-            str(d.throw_index), d.direction, f"[{DECISION_STYLE.get(d.decision, 'bold red')}]{d.decision}[/]",
+            str(d.throw_index), d.direction, f"[{DECISION_STYLE.get(d.decision, 'bold red')}]{decision_text(d)}[/]",
             key_estimates(d), f"{d.latency_ms:.0f}"]
         table.add_row(switch_id, *cells, "" if h is None else state_markup(h.state), "" if h is None else to_limit(h))
     return table

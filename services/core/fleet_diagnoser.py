@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from railswitch.models.estimation import MODEL_RATE_HZ, ThrowEstimator
+from railswitch.models.estimation import MODEL_RATE_HZ, WITHOUT, ThrowEstimator
 from railswitch.models.reduced import BearingPort, ReducedParams, ReducedSwitch, port_pairs
 from railswitch.models.reference import Reference
 from railswitch.models.switch import SwitchSimulation
@@ -112,18 +112,24 @@ class Diagnoser:
             self.switches[switch_id] = switch
         return self.switches[switch_id]
 
-    def commission(self, switch_id: str) -> None:
-        """Restart a switch's commissioning (after maintenance)."""
+    def commission(self, switch_id: str, accept: bool = False) -> dict[str, dict[str, float]]:
+        """Restart a switch's commissioning (after maintenance), or with `accept` take the switch as it now is as its
+        own (its present faults become its baseline); returns what was accepted."""
         switch = self.switch(switch_id)
-        switch.restart_commissioning()
+        accepted = switch.accept() if accept else {}
+        if not accept:
+            switch.restart_commissioning()
         if self.on_state is not None:
             self.on_state(switch_id, switch.state())
+        return accepted
 
     def diagnose(self, throw: CutThrow) -> DiagnosedThrow:
         """The Diagnosis of one throw; latency_ms is this call's wall time."""
         start = time.perf_counter()
         switch = self.switch(throw.switch_id)
         outcome = switch.diagnose(throw_input(throw))
+        if outcome.standing is not None:
+            log.warning("%s %s", throw.switch_id, outcome.standing)
         if self.on_state is not None:
             self.on_state(throw.switch_id, switch.state())
         end_ns = throw.end.t_ns if throw.end is not None else throw.start.t_ns + int(round(_last_time(throw) * 1e9))
@@ -151,29 +157,32 @@ def health_message(model: str, throw: CutThrow, health: Health, end_ns: int) -> 
 def diagnosis_message(model: str, throw: CutThrow, switch: SwitchDiagnoser, outcome: Outcome, latency_ms: float,
                       end_ns: int) -> Diagnosis:
     """The Diagnosis of a throw's outcome (docs/contracts.md section 3)."""
-    hypotheses, joint = [], None
+    hypotheses, without, joint = [], [], None
     verdict = outcome.verdict
     if verdict is not None:
-        for mode, reported in verdict.reported.items():
-            hypothesis = Hypothesis(mode=mode, params=reported.params, std=reported.std, mse=reported.mse,
+        for label, reported in verdict.reported.items():
+            hypothesis = Hypothesis(mode=reported.mode, params=reported.params, std=reported.std, mse=reported.mse,
                                     unobservable=list(reported.unobservable), nuisance=reported.nuisance)
-            if mode == "joint":
+            if label == "joint":
                 joint = hypothesis
+            elif label.startswith(WITHOUT):
+                without.append(hypothesis)
             else:
                 hypotheses.append(hypothesis)
-    estimate = None
-    if outcome.estimate is not None:
-        e = outcome.estimate
-        estimate = FaultEstimate(mode=e.mode, params=e.params, std=e.std, throws=e.throws, since_throw=e.since_throw)
+    estimates = {mode: FaultEstimate(mode=e.mode, params=e.params, std=e.std, throws=e.throws, since_throw=e.since_throw)
+                 for mode, e in outcome.estimates.items()}
     baseline = switch.baseline
     commissioning = Commissioning(state="commissioned" if baseline.complete else "provisional",
                                   throws={d: min(baseline.count(d), baseline.needed) for d in baseline.healthy},
-                                  needed=baseline.needed, outside_population=switch.outside_population())
+                                  needed=baseline.needed, outside_population=switch.outside_population(),
+                                  standing=switch.standing if not baseline.complete else None,
+                                  accepted=baseline.accepted)
     return Diagnosis(switch_id=throw.switch_id, throw_index=throw.start.throw_index, direction=throw.start.direction,
                      t_start_ns=throw.start.t_ns, t_end_ns=end_ns, model=model, decision=outcome.decision,
-                     reason=outcome.reason, hypotheses=hypotheses, joint=joint, estimate=estimate,
-                     commissioning=commissioning, latency_ms=latency_ms,
-                     signals=list(throw.signals.names) if verdict is not None else [])
+                     reason=outcome.reason, hypotheses=hypotheses, joint=joint,
+                     estimate=estimates.get(outcome.decision), commissioning=commissioning, latency_ms=latency_ms,
+                     signals=list(throw.signals.names) if verdict is not None else [],
+                     faults=list(outcome.faults), estimates=list(estimates.values()), without=without)
 
 
 def _last_time(throw: CutThrow) -> float:

@@ -197,13 +197,17 @@ class LiveDiagnoser:
         if not (switch_id in self.diagnoser.switches or switch_id in self.states or self.known(switch_id)):
             self.intake.reject("commission: unknown switch", key)
             return
-        self.diagnoser.commission(switch_id)
+        accepted = self.diagnoser.commission(switch_id, accept=command.accept)
         cached = self.states.get(switch_id)  # a switch resumed from the bus: its latest throw is the cached state's
         after = max([self._latest.get(switch_id, (0, 0)), (cached.throw_index, cached.t_ns) if cached else (0, 0)],
                     key=lambda throw: throw[1])
         self._publish_state(switch_id, *after)
         self.counts["commissions"] += 1
-        log.info("%s: commissioning restarted%s", switch_id, f" ({command.reason})" if command.reason else "")
+        why = f" ({command.reason})" if command.reason else ""
+        if command.accept:
+            log.info("%s: accepted as it is%s: %s", switch_id, why, accepted or "no present fault to accept")
+        else:
+            log.info("%s: commissioning restarted%s", switch_id, why)
 
     def expire(self) -> None:
         """Forget held throws and seen diagnoses older than the grace period (at most once a second)."""

@@ -29,19 +29,21 @@ def test_bearings_drying_out_throw_by_throw_show_whole_in_the_health_level(diagn
     assert abs(slope - 100 * rate) < 0.3 * 100 * rate, slope
 
 
-def test_while_a_bolt_is_decided_the_other_faults_levels_are_not_fed_by_hypotheses_bent_to_it(diagnoser, plant):
-    """A loose bolt bends the bearing and drive-friction hypotheses of every throw towards its effect; their health
-    must not read that as bearings or gearbox wearing (it used to raise a bearing alarm on a bolt switch)."""
+def test_while_a_bolt_is_present_the_other_faults_levels_are_fitted_beside_it_and_stay_near_zero(diagnoser, plant):
+    """A loose bolt bent every other fault's hypothesis towards its effect while hypotheses were single faults (it
+    raised a bearing alarm on a bolt switch). With the bolt present, the bearing and drive friction are fitted beside
+    it: they go on being tracked, and read near zero."""
     sim = SwitchSimulation(plant, noise_rel=0.01, seed=7)
     source = SimulatedThrows("bolted", sim)
     for _ in range(2 * COMMISSIONING_THROWS + 4):
         diagnoser.diagnose(source.next())
     sim.set_faults({"left_bolt_offset": 0.04})
-    filters = diagnoser.switches["bolted"].health.filters
-    outcomes, fed = [], []
-    for _ in range(6):
-        outcomes.append(diagnoser.diagnose(source.next()))
-        fed.append({name: filters[name].updates for name in ("bearing_friction", "drive_friction_nm")})
-    decided = [k for k, o in enumerate(outcomes) if o.diagnosis.decision == "left_bolt"]
-    assert decided, [o.diagnosis.decision for o in outcomes]
-    assert fed[decided[0]:] == [fed[decided[0]]] * (len(fed) - decided[0]), fed
+    outcomes = [diagnoser.diagnose(source.next()) for _ in range(8)]
+    present = [k for k, o in enumerate(outcomes) if o.diagnosis.faults == ["left_bolt"]]
+    assert present and present[0] <= 1, [o.diagnosis.faults for o in outcomes]
+    for outcome in outcomes[present[0] + 1:]:
+        levels = {p.name: p for p in outcome.health.parameters}
+        for name in ("bearing_friction", "drive_friction_nm"):
+            # a fifth of the limit: a healthy switch's drive friction reads up to 0.01 N·m (its fit is bounded at 0,
+            # so model error reads as friction, never as less); a hypothesis bent to the bolt read past the limit
+            assert abs(levels[name].level) < 0.2 * levels[name].limit and levels[name].state == "ok", levels[name]

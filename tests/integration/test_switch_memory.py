@@ -49,13 +49,15 @@ def test_a_switch_keeps_only_what_its_next_throws_read_and_a_persisting_fault_ad
             used.append(tracemalloc.get_traced_memory()[0])
     tracemalloc.stop()
     assert diagnosed.diagnosis.decision == "left_bolt"
-    assert switch.latest["left_to_right"].mode == "left_bolt"  # the other direction cannot see it: healthy
+    assert diagnosed.diagnosis.faults == ["left_bolt"]
+    assert switch.latest["left_to_right"].base == {"left_bolt"}  # fitted with it present; the other direction cannot
     for verdict in switch.latest.values():  # a faulty throw's slopes: no later throw borrows them
         assert _arrays(verdict)["residual"] == _arrays(verdict)["fitted"] == 0
         assert (_arrays(verdict)["slopes"] > 0) == (verdict.mode == "nominal"), verdict.mode
-    # the fault's throws are combined over the latest TRACKED_THROWS, each kept as its decided mode's report
-    assert len(switch.track) == 4 and all(set(v.reported) == {v.mode} and not v.estimates for v in switch.track)
-    assert diagnosed.diagnosis.estimate.since_throw == switch.track[0].index
+    # the fault's throws are combined over the latest TRACKED_THROWS, each kept as its mode's report
+    track = switch.faults["left_bolt"].track
+    assert len(track) == 4 and all(set(v.reported) == {"left_bolt"} and not v.estimates for v in track)
+    assert diagnosed.diagnosis.estimate.since_throw == track[0].index
     # a throw kept whole held 117 kB; as kept, some 1 kB
     assert (used[-1] - used[0]) / (len(used) - 1) < 20_000, np.diff(used)
 

@@ -6,7 +6,7 @@ import pytest
 
 from railswitch.models.estimation import Estimate, effective_samples
 from railswitch.models.isolation import judge
-from railswitch.models.switch_diagnosis import BOLT_TOLERANCE, ErrorModel, SwitchDiagnoser
+from railswitch.models.switch_diagnosis import BOLT_TOLERANCE, Baseline, ErrorModel, SwitchDiagnoser
 
 
 def test_effective_sample_count_is_the_count_for_white_noise_and_small_for_smooth_error():
@@ -46,6 +46,7 @@ def test_a_detected_bolt_within_the_setting_tolerance_is_an_adjustment_not_a_fau
 def test_the_switch_diagnoser_calls_bolts_within_tolerance_negligible_and_larger_ones_not():
     switch = SwitchDiagnoser.__new__(SwitchDiagnoser)
     switch.errors = ErrorModel(bias={"left_bolt_offset": 0.001})
+    switch.baseline, switch.faults = Baseline(), {}
     small = _estimate("left_bolt", 0.5, {"left_bolt_offset": -BOLT_TOLERANCE + 0.0015})  # -3.5 mm less the bias
     large = _estimate("right_bolt", 0.5, {"right_bolt_offset": BOLT_TOLERANCE + 0.001})
     assert switch.negligible({"left_bolt": small, "right_bolt": large}) == ["left_bolt"]

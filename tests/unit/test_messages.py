@@ -2,6 +2,7 @@
 
 import json
 import math
+from typing import Literal
 
 import pytest
 from hypothesis import given
@@ -20,6 +21,7 @@ from railswitch.schemas import (
     FaultCommand,
     FaultTruth,
     Hypothesis,
+    Message,
     MessageError,
     MotorSample,
     ThrowEvent,
@@ -248,7 +250,7 @@ NESTED = Diagnosis.model_validate(DIAGNOSIS.model_dump() | {
     "commissioning": Commissioning(state="provisional", throws={"left_to_right": 1}, needed=4)})
 
 
-VALUE_MAPS = ("params", "std", "nuisance", "throws", "plant")  # objects of values, not nested messages
+VALUE_MAPS = ("params", "std", "nuisance", "throws", "plant", "accepted")  # objects of values, not nested messages
 EXTRA = {"unit_serial": "PM-4711"}
 
 
@@ -402,3 +404,58 @@ def test_arbitrary_bytes_decode_to_a_model_or_message_error(data: bytes) -> None
             assert isinstance(decode_counted(model_cls, data)[0], model_cls)
         except MessageError:
             pass
+
+
+class OlderCommissioning(Message):
+    """Commissioning as contract 1 had it before several faults were told apart."""
+
+    state: Literal["provisional", "commissioned"]
+    throws: dict[Literal["left_to_right", "right_to_left"], int]
+    needed: int
+    outside_population: list[str] = []
+
+
+class OlderDiagnosis(Message):
+    """The Diagnosis an older reader knows: one fault at most (contract 1 before `faults`, `estimates`, `without`)."""
+
+    switch_id: str
+    throw_index: int
+    direction: Literal["left_to_right", "right_to_left"]
+    t_start_ns: int
+    t_end_ns: int
+    model: str
+    decision: str
+    reason: str | None = None
+    hypotheses: list[Hypothesis] = []
+    joint: Hypothesis | None = None
+    estimate: FaultEstimate | None = None
+    commissioning: OlderCommissioning | None = None
+    signals: list[str] = []
+    latency_ms: float
+
+
+BOLT_ESTIMATE = FaultEstimate(mode="left_bolt", params={"left_bolt_offset": 0.044}, std={"left_bolt_offset": 0.001},
+                              throws=3, since_throw=20)
+SEVERAL = Diagnosis.model_validate(DIAGNOSIS.model_dump() | {
+    "decision": "left_bolt", "faults": ["left_bolt", "missing_bearing"],
+    "estimates": [BOLT_ESTIMATE, FaultEstimate(mode="missing_bearing", params={"bearing_friction": 3100.0},
+                                               throws=9, since_throw=10)],
+    "estimate": BOLT_ESTIMATE,
+    "without": [Hypothesis(mode="missing_bearing", params={}, mse=0.03)],
+    "commissioning": Commissioning(state="commissioned", throws={"left_to_right": 4, "right_to_left": 4}, needed=4,
+                                   accepted={"drive_friction": {"drive_friction_nm": 0.05}})})
+
+
+def test_an_older_reader_reads_a_diagnosis_of_several_faults_as_its_newest_and_counts_what_it_does_not_know() -> None:
+    older, unknown = decode_counted(OlderDiagnosis, encode(SEVERAL))
+    assert older.decision == "left_bolt" and older.estimate == BOLT_ESTIMATE
+    assert older.commissioning.state == "commissioned"
+    assert unknown == ["commissioning.accepted", "commissioning.standing", "estimates", "faults", "without"]
+
+
+def test_a_diagnosis_written_before_several_faults_reads_as_faults_unknown() -> None:
+    written = json.dumps({k: v for k, v in json.loads(encode(DIAGNOSIS)).items()
+                          if k not in ("faults", "estimates", "without")}).encode()
+    read = decode(Diagnosis, written)
+    assert read.faults is None and read.estimates == [] and read.decision == "left_bolt"
+    assert decode(Diagnosis, encode(SEVERAL)) == SEVERAL
