@@ -689,7 +689,10 @@ class ThrowEstimator:
         # A nuisance the nominal fit had to push far from its prior is the fault's effect absorbed (chairs five
         # times as dry for a missing bearing): the fault modes start it at its prior's edge, since from the
         # nominal's place the fault's parameter and the nuisance trade along a valley too flat to leave.
-        nominal = specs["nominal"].within_priors(out["nominal"].values, START_SIGMAS)
+        # The present faults (the nominal spec's `initial`: their latest estimates) start the fault modes where they
+        # were, not where the nominal fit took them: a throw that shows a new fault bends them in the fit without it
+        # (drive friction appearing took an 87 mm bolt to -10 mm, and the drive-friction fit started there stayed).
+        nominal = specs["nominal"].within_priors({**out["nominal"].values, **specs["nominal"].initial}, START_SIGMAS)
         modes = [mode for mode in specs if mode not in ("nominal", "joint") and not mode.startswith(WITHOUT)]
         settled = settled_mse is not None and out["nominal"].mse <= (1.0 + SETTLED) * settled_mse
         starts, lowest = self.grid_starts([specs[mode] for mode in modes], nominal, throw, warm, settled)

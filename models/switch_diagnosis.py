@@ -7,11 +7,10 @@ reduced model can show:
 
 - the switch's own weather (winding resistance, supply, slide-chair Coulomb friction): free
   in every throw, the resistance and supply with the population as their prior; the chairs'
-  friction once commissioned with the switch's own recent level (an average over its latest
-  healthy throws) as the prior's mean and DRIFT of it as its spread, so that chairs drying out
-  over many throws are followed while a sudden change is not explained away (with the model's
-  error, the chairs' Coulomb friction and a bearing's viscous friction are not told apart
-  within a throw: how fast they change is what tells them apart);
+  friction once commissioned with the switch's own recent level as the prior's mean and DRIFT of
+  it as its spread, so that chairs drying out over many throws are followed while a sudden change
+  is not explained away; the level follows each throw that shows nothing new as far as its samples
+  say the change is the chairs' and not a bearing's (_follow_chairs, docs/method.md);
 - its healthy levels of two fault-like parameters, the extra rail damping that the
   bearing fault adds to (rolling losses differ from switch to switch) and the point
   machine's Coulomb friction that the drive-friction fault adds to: free with the
@@ -27,12 +26,15 @@ a healthy throw by absorbing model error). Until then decisions are provisional,
 against the population. A fault is a departure the free parameters cannot explain:
 bearing friction and drive friction are reported as departures from the baseline.
 
-Each throw checks that it can be diagnosed, estimates where it starts (the motor angle
-from every sample, the blades where the previous throw's fit left them), fits every
-hypothesis the throw can show (a bolt only in the throws it drives; the other bolt is
-held at its latest estimate) and judges them (models/isolation.py). The decided fault's
-size combines every throw since it appeared that can see it, weighted by their own
-variances, with the model's error (which does not average out) added once.
+A switch's state is a set of present faults (models/fault_set.py). Each throw checks that it
+can be diagnosed, estimates where it starts (the motor angle from every sample, the blades where
+the previous throw's fit left them), fits the switch as it now is (its present faults free), the
+same plus each mode it does not have and the same without each present fault (a bolt only in the
+throws it drives; the other bolt is held at its latest estimate), judges them (models/isolation.py)
+and adds or repairs faults. Each present fault's size combines every throw since it was confirmed
+that can see it, weighted by their own variances, with the model's error (which does not average
+out) added once. A switch that cannot be commissioned as healthy says so, and an operator may
+accept it as it is (SwitchDiagnoser.accept).
 """
 from __future__ import annotations
 
@@ -448,10 +450,6 @@ class ThrowVerdict:
     fitted: dict[str, np.ndarray]  # that hypothesis's outputs at the samples after the start
     provisional: bool
     base: frozenset[str] = frozenset()
-
-    @property
-    def strength(self) -> float:
-        return self.evidence[self.mode].ratio if self.mode in self.evidence else 0.0
 
     def modes_of(self, label: str) -> frozenset[str]:
         """The faults a hypothesis of this throw was fitted with."""
@@ -905,13 +903,16 @@ class SwitchDiagnoser:
 
     def _judged(self, direction: str, start_rail_m: float) -> frozenset[str]:
         """The modes a throw's evidence counts for: every mode it can show, but only its own bolt when it starts with
-        the blades short of the stock rail (a loose bolt of the other direction left them there). Resting short, the
+        the blades short of the stock rail and a loose bolt of the other direction left them there (a judgement of
+        what the fitted blades' end says alone would hold a fault whose fit leaves them short from ever being judged
+        gone: an obstacle, removed, did so for good). Resting short, the
         blades lean on that bolt's face, and in the plant they follow it back from the throw's first instant; the
         reduced model, whose chairs hold no static friction, has them elsewhere when this throw's bolt meets the
         adjuster, and misfits the current there twenty times the noise (poly, a 50 mm left bolt): fitted anyway, such
         a throw read a missing bearing of 3300 N·s/m as 400 to 700 and drive friction where there was none."""
         modes = frozenset(candidate_modes(direction))
-        if abs(start_rail_m - CLOSED_START_M[direction]) > SHORT_START_M:
+        loose = DRIVING_BOLT[OTHER_DIRECTION[direction]] in self.faults
+        if loose and abs(start_rail_m - CLOSED_START_M[direction]) > SHORT_START_M:
             return modes & {DRIVING_BOLT[direction]}
         return modes
 
@@ -1048,7 +1049,14 @@ class SwitchDiagnoser:
         """Each tracked parameter this throw could see, as it estimated it: a present fault's from the switch as it is,
         another's from its own hypothesis, unless the throw showed a new fault of another mode (whose effect that
         hypothesis bends to: a bearing grown past detection shows as drive friction in the drive-friction
-        hypothesis, which cannot free the bearing that far; a loose bolt as bearing friction)."""
+        hypothesis, which cannot free the bearing that far; a loose bolt as bearing friction).
+
+        Once commissioned, the bearing friction counts the chairs' departure from their commissioned level too
+        (CHAIRS_AS_BEARING): the chairs follow the weather throw by throw, as far as each throw's samples say the change
+        is theirs (_follow_chairs), and a bearing that dries out very slowly (40 N·s/m a throw: each throw's split says
+        nothing) is still followed by them, and would be hidden from the trend. Weather then wanders the bearing's
+        level (chairs a fifth drier: some 400 N·s/m, a twelfth of its limit); a worn bearing
+        shows whole, and the decisions, which the chairs' prior carries, tell the two apart."""
         out = {}
         for name in TRACKED:
             mode = FAULT_PARAMETERS[name].mode

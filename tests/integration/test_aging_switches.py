@@ -117,3 +117,47 @@ def test_current_only_throws_that_fit_a_bearing_about_as_well_do_not_commission_
                for d in diagnoses)
     assert all("not counted: the throw fits missing_bearing" in d.reason for d in diagnoses)
     assert all(d.signals == ["current_a"] for d in diagnoses)
+
+
+def test_an_accept_command_on_the_bus_takes_the_switch_as_it_is_and_a_restarted_diagnoser_keeps_it(plant, tmp_path):
+    """`railswitch commission SW --accept` as the live diagnoser receives it: the standing condition is accepted, the
+    acceptance is in the switch's stored state, and a diagnoser restarted from it goes on from the accepted baseline."""
+    from railswitch.schemas import CommissionCommand, encode, key_expr
+    from railswitch.services.adapters.baseline_store import BaselineStore
+    from railswitch.services.adapters.zenoh_bus import Received
+    from railswitch.services.core.fleet_diagnoser import Diagnoser
+    from railswitch.services.core.live_diagnoser import LiveDiagnoser
+
+    def diagnoser_with_store():
+        store = BaselineStore("poly", tmp_path)
+        return Diagnoser("poly", on_state=store.save, stored_state=store.load), store
+
+    first, store = diagnoser_with_store()
+    life = Life(first, plant, "installed", seed=4246, own={"rail.chair_viscous_n_s_m": 1.6})
+    assert life.throws(10)[-1].faults == ["missing_bearing"]
+    live = LiveDiagnoser(first, publishers=None, known=store.known)
+    live.handle(Received(key_expr("installed", "commission"),
+                         encode(CommissionCommand(switch_id="installed", accept=True)), 0.0))
+    assert live.commissions == 1 and first.switches["installed"].baseline.complete
+    again, _ = diagnoser_with_store()
+    resumed = again.switch("installed")
+    assert resumed.baseline.complete and set(resumed.baseline.accepted) == {"missing_bearing"}
+    life.diagnoser = again
+    after = life.throws(4)
+    assert all(d.faults == [] and "missing_bearing" in d.commissioning.accepted for d in after)
+
+
+def test_a_commissioned_switch_accepts_its_worn_gearbox_and_more_wear_is_a_fault_of_the_rest(diagnoser, plant):
+    """Accepted on a commissioned switch, drive friction shifts the point machine's own friction: the switch reads
+    healthy at once, and further wear reads as drive friction of what it adds beyond the accepted."""
+    life = Life(diagnoser, plant, "gearbox", seed=4247)
+    life.throws(COMMISSIONED + 1)
+    worn = life.throws(4, {"drive_friction_nm": 0.052})
+    assert worn[-1].faults == ["drive_friction"]
+    accepted = diagnoser.commission(life.switch_id, accept=True)["drive_friction"]["drive_friction_nm"]
+    assert abs(accepted - 0.052) < 0.01
+    assert all(d.faults == [] and d.commissioning.state == "commissioned" for d in life.throws(4))
+    wearing = life.throws(4, {"drive_friction_nm": 0.113})
+    assert wearing[-1].faults == ["drive_friction"]
+    more = wearing[-1].estimates[0]
+    assert abs(more.params["drive_friction_nm"] - (0.113 - accepted)) <= 2 * more.std["drive_friction_nm"]
