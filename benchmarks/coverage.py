@@ -60,17 +60,18 @@ def main() -> None:
         seen: dict[str, list[float]] = {}
         for _ in range(FAULTY_THROWS):
             d = diagnoser.diagnose(source.next()).diagnosis
-            if d.decision == case.mode and d.estimate is not None:
+            estimate = d.estimate_of(case.mode)
+            if estimate is not None:
                 for name, truth in case.faults.items():
-                    seen.setdefault(name, []).append((d.estimate.params[name] - truth) / d.estimate.std[name])
+                    seen.setdefault(name, []).append((estimate.params[name] - truth) / estimate.std[name])
         if not seen:
             missed.append({"mode": case.mode, "faults": {n: round(v, 4) for n, v in case.faults.items()},
-                           "decision": d.decision})
+                           "decision": d.named()})
         for name, values in seen.items():
             z.setdefault(name, []).append((values[0], values[-1]))
         if not args.json:
             print(case.mode, {n: round(v, 4) for n, v in case.faults.items()},
-                  {n: round(v[-1], 2) for n, v in seen.items()} or d.decision, flush=True)
+                  {n: round(v[-1], 2) for n, v in seen.items()} or d.named(), flush=True)
         del diagnoser.switches[switch_id]
     every = [pair for rows in z.values() for pair in rows]
     emit({"model": args.model, "seed": args.seed, "cases": len(cases),

@@ -119,10 +119,11 @@ def main() -> None:
             first_visible = throw if first_visible is None else first_visible
             if d.decision != "nominal" and first_detected is None:
                 first_detected = throw
-            if d.decision == run.mode and d.estimate is not None:
-                for name, value in d.estimate.params.items():
-                    covered.append((name, abs(value - run.faults[name]) <= 2 * d.estimate.std[name],
-                                    (value - run.faults[name]) / d.estimate.std[name]))
+            estimate = d.estimate_of(run.mode)
+            if estimate is not None:
+                for name, value in estimate.params.items():
+                    covered.append((name, abs(value - run.faults[name]) <= 2 * estimate.std[name],
+                                    (value - run.faults[name]) / estimate.std[name]))
                     last_z[run.switch_id, name] = covered[-1][2]
             last = d
         if run.mode is not None:
@@ -130,12 +131,12 @@ def main() -> None:
             if first_detected is not None:
                 detected += 1
                 delays.append(first_detected - first_visible)
-            if last is not None and last.decision == run.mode:
+            if last is not None and last.named() == run.mode:  # the fault alone, nothing beside it
                 isolated += 1
                 truth = run.faults[MAGNITUDE[run.mode]]
-                rel_errors.append(abs(last.estimate.params[MAGNITUDE[run.mode]] - truth) / abs(truth))
+                rel_errors.append(abs(last.estimate_of(run.mode).params[MAGNITUDE[run.mode]] - truth) / abs(truth))
         if not args.json:
-            print(run.switch_id, run.mode, run.faults, "onset", run.onset, "last", last.decision if last else None,
+            print(run.switch_id, run.mode, run.faults, "onset", run.onset, "last", last.named() if last else None,
                   last.estimate.params if last and last.estimate else "", flush=True)
         del diagnoser.switches[run.switch_id]
     emit({

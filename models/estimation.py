@@ -108,7 +108,8 @@ HOPELESS_MARGIN = 5.0
 SLOPES_AGE = 2
 OUTPUTS_KEPT = 32  # rollouts a prepared throw keeps (a throw's fits take about 12)
 START_SIGMAS = 3.0  # fault modes start the nominal fit's nuisances within this many prior std of their means
-# The label of a hypothesis that is the switch as it now is without one of its present faults (a repair): WITHOUT + mode.
+# The label of the hypothesis that is the switch as it now is without one of its present faults (a repair): WITHOUT
+# + mode.
 WITHOUT = "without:"
 # A bolt drives the blades in one direction only (the left bolt from left to right).
 DRIVING_BOLT = {"left_to_right": "left_bolt", "right_to_left": "right_bolt"}

@@ -96,16 +96,18 @@ def decide_between(undecided: Undecided, direction: str, detected: list[str]) ->
 
 def repaired(fault: Fault, now: Evidence, size: float, size_std: float, small: bool, sudden_only: bool = False) -> bool:
     """Whether a confirmed fault is gone after a throw that sees it. A bolt back within its adjustment (`small`) is, at
-    once. Another is when this throw does not show it and its size is back at its reference (within RETURN_SIGMAS of
-    the fit's standard deviation), and it either dropped suddenly since the throw that saw it before (a repair: it must
+    once (it shows only every other throw). Another is when its size is no fault (`small`: an obstacle below its
+    tolerance), or this throw does not show it and its size is back at its reference (within RETURN_SIGMAS of the
+    fit's standard deviation), and it either dropped suddenly since the throw that saw it before (a repair: it must
     have done so on two throws that see it in a row, since one throw can misfit, a throw that starts short after a
     loose bolt say) or has faded: not shown by EVIDENCE_THROWS throws in a row that saw it, nor by their presence
     added up. `sudden_only`: a sudden drop alone counts (the throw shows a new fault, which may bend the rest).
     Updates `fault.dropped` and `fault.absent`."""
-    if small:
+    bolt = fault.mode in DRIVING_BOLT.values()
+    if small and bolt:
         return not sudden_only or fault.size - size > DROP_SIGMAS * float(np.hypot(fault.size_std, size_std))
     fault.absent = fault.absent + 1 if not now.detected else 0
-    back = not now.detected and abs(size) <= RETURN_SIGMAS * size_std
+    back = small or not now.detected and abs(size) <= RETURN_SIGMAS * size_std
     dropped = back and fault.size - size > DROP_SIGMAS * float(np.hypot(fault.size_std, size_std))
     if dropped:
         confirmed, fault.dropped = fault.dropped, True

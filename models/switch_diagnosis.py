@@ -48,6 +48,7 @@ from railswitch.models.drive import DriveParams
 from railswitch.models.estimation import DRIVING_BOLT, WITHOUT, Estimate, HypothesisSpec, Measurement, ThrowEstimator
 from railswitch.models.fault_set import (
     MAGNITUDE,
+    RETURN_SIGMAS,
     Fault,
     Undecided,
     decide_between,
@@ -76,6 +77,7 @@ from railswitch.schemas.plant import PLANT_PARAMETERS
 
 CLOSED_START_M = {"left_to_right": 1.0, "right_to_left": 1.2}  # where a throw starts when the last one closed
 SHORT_START_M = 0.002  # a throw starting further than this from the stock rail starts short (SwitchDiagnoser._judged)
+OBSTACLE_REACH_M = 0.024  # an obstacle drags the blades within two of its widths (models/faults.py: 12 mm) either side
 GAP_TOLERANCE = 0.25  # of a sample period, for "the samples are evenly spaced"
 # A throw ends when the point machine detects its end position, earlier or later than its reference profile
 # ends; it is cut short only when it ends while the motor is still asked to turn (or, where measured, still
@@ -126,6 +128,11 @@ BOLT_TOLERANCE = 0.005
 # obstacle, drive friction or a loose bolt of the other direction (which leaves the next throw starting short), always
 # tight, never loose (poly, benchmarks.aging's stacked sequences).
 TIGHT_TOLERANCE = 0.010
+# A loose bolt of the other direction leaves the blades short, and a throw starting there reads its own bolt within this
+# share of that bolt's departure of its truth, either way (SwitchDiagnoser._judged says why): 4 mm tight beside a 50 mm
+# left bolt, 6 to 35 mm loose beside right bolts of 116 to 174 mm (causal, benchmarks.fleet seed 1). Its throws tell
+# the two bolts' play together more than either, so a bolt that small beside a loose one is not told from none.
+SHORT_SHARE = 0.2
 # An obstacle fitted below this friction is no fault: on healthy switches the obstacle's hypothesis reads the model's
 # error as one of 2000 to 2600 N·s/m at an end of the travel, and on a switch whose rollers lose 1.8 times the
 # population's, as 3500 to 4000 (seen with poly); a third of its maintenance limit (models/health.py), a tenth of the
@@ -141,14 +148,15 @@ OBSTACLE_GRID = tuple({"obstacle_position": round(float(p), 3), "obstacle_fricti
 SMALL_OBSTACLE_GRID = tuple(point for point in OBSTACLE_GRID if point["obstacle_friction"] == 3e4)
 
 
-def small(mode: str, departures: dict[str, float], loaded: bool = False) -> bool:
+def small(mode: str, departures: dict[str, float], loaded: bool = False, other_bolt: float = 0.0) -> bool:
     """Whether a fault of `mode` this size (its parameters' departures from their marks, the model's bias taken off)
     is no fault: a bolt within BOLT_TOLERANCE of its mark (an adjustment), or read tight by less than TIGHT_TOLERANCE
-    on a switch `loaded` by another present fault; an obstacle below OBSTACLE_TOLERANCE (what the model's error reads
-    as one)."""
+    on a switch `loaded` by another present fault, and within SHORT_SHARE of the other bolt's departure (`other_bolt`,
+    present) more either way; an obstacle below OBSTACLE_TOLERANCE (what the model's error reads as one)."""
     if mode in DRIVING_BOLT.values():
         offset = departures[MODE_PARAMETERS[mode][0]]
-        return -(TIGHT_TOLERANCE if loaded else BOLT_TOLERANCE) < offset < BOLT_TOLERANCE
+        start = SHORT_SHARE * abs(other_bolt)
+        return -(TIGHT_TOLERANCE if loaded else BOLT_TOLERANCE) - start < offset < BOLT_TOLERANCE + start
     if mode == "obstacle":
         return departures["obstacle_friction"] < OBSTACLE_TOLERANCE
     return False
@@ -816,25 +824,26 @@ class SwitchDiagnoser:
         specs = self.specs(direction)
         estimates = self.estimator.fit_all(
             prepared, specs, weight,
-            decide=lambda fits: judge(direction, fits, gains, self.evidence, self.negligible(fits))[0],
+            decide=lambda fits: judge(direction, fits, gains, self.evidence, self.negligible(fits, direction))[0],
             warm=self._warm(previous, specs, direction),
             settled_mse=settled_mse(previous, m, base),
             slopes=None if previous is None else {mode: e.slopes for mode, e in previous.estimates.items()
                                                 if e.slopes is not None})
-        negligible = self.negligible(estimates)
+        negligible = self.negligible(estimates, direction)
         best, found = judge(direction, estimates, gains, self.evidence, negligible)
-        judged = self._judged(direction, start_rail)
+        explained = estimates[best] if best != "nominal" else estimates["nominal"]  # where it leaves the blades
+        fitted = self.estimator.simulate(prepared, explained.values)
+        end_rail = float(fitted["rail_position_m"][-1])
+        judged = self._judged(direction, start_rail, end_rail)
         for name, seen in found.items():
             if name in judged:
                 self.evidence[name] = [seen, *self.evidence.get(name, [])][:EVIDENCE_THROWS]
         detected = sorted((mode for mode, e in found.items() if e.detected and mode not in negligible and mode in judged),
                           key=lambda mode: estimates[mode].objective)
         shown = best if best in judged else "nominal"
-        explained = estimates[best] if best != "nominal" else estimates["nominal"]  # where it leaves the blades
-        fitted = self.estimator.simulate(prepared, explained.values)
         reported = self._reports(direction, estimates, base)
-        verdict = ThrowVerdict(throw.index, direction, shown, found, estimates, reported,
-                               float(fitted["rail_position_m"][-1]), fitted, provisional, base)
+        verdict = ThrowVerdict(throw.index, direction, shown, found, estimates, reported, end_rail, fitted, provisional,
+                               base)
         # A throw that repairs a fault adds none: its other modes were tested against the switch with that fault.
         repaired = self._repairs(direction, estimates, reported, gains, shown, judged)
         added = None if repaired else self._additions(verdict, detected)
@@ -901,7 +910,7 @@ class SwitchDiagnoser:
         reported[hidden.mode] = hidden
         return reported
 
-    def _judged(self, direction: str, start_rail_m: float) -> frozenset[str]:
+    def _judged(self, direction: str, start_rail_m: float, end_rail_m: float) -> frozenset[str]:
         """The modes a throw's evidence counts for: every mode it can show, but only its own bolt when it starts with
         the blades short of the stock rail and a loose bolt of the other direction left them there (a judgement of
         what the fitted blades' end says alone would hold a fault whose fit leaves them short from ever being judged
@@ -909,12 +918,23 @@ class SwitchDiagnoser:
         blades lean on that bolt's face, and in the plant they follow it back from the throw's first instant; the
         reduced model, whose chairs hold no static friction, has them elsewhere when this throw's bolt meets the
         adjuster, and misfits the current there twenty times the noise (poly, a 50 mm left bolt): fitted anyway, such
-        a throw read a missing bearing of 3300 N·s/m as 400 to 700 and drive friction where there was none."""
+        a throw read a missing bearing of 3300 N·s/m as 400 to 700 and drive friction where there was none. Left short
+        by anything else (an obstacle that stalls the blades), the throw judges every mode but its own bolt, whose
+        engagement it misreads the same way (a 248 000 N·s/m obstacle's next throw read its bolt 21 mm tight, from the
+        current alone). A present obstacle is judged only by a throw whose blades passed it (one that stalls them short
+        leaves the next throw, the other way, starting short of it: there it read as gone)."""
         modes = frozenset(candidate_modes(direction))
-        loose = DRIVING_BOLT[OTHER_DIRECTION[direction]] in self.faults
-        if loose and abs(start_rail_m - CLOSED_START_M[direction]) > SHORT_START_M:
+        obstacle = self.faults.get("obstacle")
+        if obstacle is not None:  # a present obstacle the blades did not pass in this throw is not seen by it
+            position = obstacle.values["obstacle_position"]
+            low, high = sorted((start_rail_m, end_rail_m))
+            if not low - OBSTACLE_REACH_M <= position <= high + OBSTACLE_REACH_M:
+                modes = modes - {"obstacle"}
+        if abs(start_rail_m - CLOSED_START_M[direction]) <= SHORT_START_M:
+            return modes
+        if DRIVING_BOLT[OTHER_DIRECTION[direction]] in self.faults:
             return modes & {DRIVING_BOLT[direction]}
-        return modes
+        return modes - {DRIVING_BOLT[direction]}
 
     def _repairs(self, direction: str, estimates: dict[str, Estimate], reported: dict[str, Reported],
                  gains: dict[str, float], shown: str, judged: frozenset[str]) -> list[str]:
@@ -929,7 +949,7 @@ class SwitchDiagnoser:
             report = reported[mode] if shown == "nominal" else self._report(direction, estimates[shown], (mode,))
             size = size_of(mode, report.params)
             size_std = float(np.hypot(report.fit_std.get(MAGNITUDE[mode], 0.0), self._reference_std(direction, mode)))
-            if repaired(fault, now, size, size_std, small(mode, report.params, self.loaded(mode)),
+            if repaired(fault, now, size, size_std, small(mode, report.params, self.loaded(mode), self.other_bolt(mode)),
                         sudden_only=shown != "nominal"):
                 gone.append(mode)
                 del self.faults[mode]
@@ -1029,17 +1049,36 @@ class SwitchDiagnoser:
         self.standing = "cannot be commissioned as healthy: " + "; ".join(parts)
         return self.standing
 
-    def negligible(self, estimates: dict[str, Estimate]) -> list[str]:
-        """The modes whose fitted size is no fault (small): a bolt's or an obstacle's hypothesis fitted that small."""
+    def negligible(self, estimates: dict[str, Estimate], direction: str) -> list[str]:
+        """The modes whose fitted size is no fault: a bolt's or an obstacle's hypothesis fitted that small (`small`); a
+        missing bearing or drive friction fitted within RETURN_SIGMAS of its reference (its fit's and the baselined
+        level's spread together), whose fit beat the switch as it is by fitting the rest better, not by the fault (a
+        near-stall obstacle's nominal fit stopped in a worse basin than the bearing's, and a bearing of zero was
+        confirmed)."""
         out = []
-        for mode in (*DRIVING_BOLT.values(), "obstacle"):
-            if mode in estimates:
-                values = estimates[mode].values
-                departures = {name: self.errors.corrected(name, values[name] - self.mark(name))
-                              for name in MODE_PARAMETERS[mode]}
-                if small(mode, departures, self.loaded(mode)):
+        for mode in MODE_PARAMETERS:
+            if mode not in estimates:
+                continue
+            estimate = estimates[mode]
+            departures = {name: self.errors.corrected(name, value) for name, value in
+                          self._departures(mode, estimate.values, direction).items()}
+            if mode in ("missing_bearing", "drive_friction"):
+                name = MAGNITUDE[mode]
+                spread = float(np.hypot(estimate.std.get(name, 0.0), self._reference_std(direction, mode)))
+                if departures[name] <= RETURN_SIGMAS * spread:
                     out.append(mode)
+            elif small(mode, departures, self.loaded(mode), self.other_bolt(mode)):
+                out.append(mode)
         return out
+
+    def other_bolt(self, mode: str) -> float:
+        """The departure of the other direction's bolt from its mark when `mode` is a bolt and that one is present."""
+        if mode not in DRIVING_BOLT.values():
+            return 0.0
+        other = next(bolt for bolt in DRIVING_BOLT.values() if bolt != mode)
+        fault = self.faults.get(other)
+        name = MODE_PARAMETERS[other][0]
+        return 0.0 if fault is None else fault.values[name] - self.mark(name)
 
     def loaded(self, mode: str) -> bool:
         """Whether the switch has a present fault besides `mode`."""

@@ -254,6 +254,23 @@ class Diagnosis(Message):
     signals: list[Literal["current_a", "angle_rad", "velocity_rad_s"]] = []  # what the throw's fit used
     latency_ms: NonNegative
 
+    def present(self) -> list[str]:
+        """The faults believed present: `faults`, or, from a diagnoser that names one fault at most, the decision's."""
+        if self.faults is not None:
+            return list(self.faults)
+        return [] if self.decision in ("nominal", "unknown") else [self.decision]
+
+    def named(self) -> str:
+        """The present faults joined by '+' ('left_bolt+missing_bearing'), nominal, or unknown."""
+        return "+".join(self.present()) or ("unknown" if self.decision == "unknown" else "nominal")
+
+    def estimate_of(self, mode: str) -> FaultEstimate | None:
+        """A present fault's combined size (`estimates`, or `estimate` from a diagnoser that names one fault)."""
+        found = [e for e in self.estimates if e.mode == mode]
+        if found:
+            return found[0]
+        return self.estimate if self.estimate is not None and self.estimate.mode == mode else None
+
     @model_validator(mode="after")
     def _check_consistency(self) -> Self:
         """The throw ends after it starts, and an unknown decision says why."""
