@@ -128,10 +128,11 @@ BOLT_TOLERANCE = 0.005
 # obstacle, drive friction or a loose bolt of the other direction (which leaves the next throw starting short), always
 # tight, never loose (poly, benchmarks.aging's stacked sequences).
 TIGHT_TOLERANCE = 0.010
-# A loose bolt of the other direction leaves the blades short, and a throw starting there reads its own bolt within this
-# share of that bolt's departure of its truth, either way (SwitchDiagnoser._judged says why): 4 mm tight beside a 50 mm
-# left bolt, 6 to 35 mm loose beside right bolts of 116 to 174 mm (causal, benchmarks.fleet seed 1). Its throws tell
-# the two bolts' play together more than either, so a bolt that small beside a loose one is not told from none.
+# A throw that starts with the blades short of the stock rail (a loose bolt of the other direction, or an obstacle that
+# stalled them, left them there) reads its own bolt within this share of how far short it started, in rod travel (the
+# blades' times the linkage ratio), of its truth either way (SwitchDiagnoser._judged says why): 4 mm tight beside a
+# 50 mm left bolt, 6 to 35 mm loose beside right bolts of 116 to 174 mm (causal, benchmarks.fleet seed 1), 21 mm tight
+# after a 248 000 N·s/m obstacle stalled the blades (current only). A bolt that small there is not told from none.
 SHORT_SHARE = 0.2
 # An obstacle fitted below this friction is no fault: on healthy switches the obstacle's hypothesis reads the model's
 # error as one of 2000 to 2600 N·s/m at an end of the travel, and on a switch whose rollers lose 1.8 times the
@@ -148,14 +149,14 @@ OBSTACLE_GRID = tuple({"obstacle_position": round(float(p), 3), "obstacle_fricti
 SMALL_OBSTACLE_GRID = tuple(point for point in OBSTACLE_GRID if point["obstacle_friction"] == 3e4)
 
 
-def small(mode: str, departures: dict[str, float], loaded: bool = False, other_bolt: float = 0.0) -> bool:
+def small(mode: str, departures: dict[str, float], loaded: bool = False, short_m: float = 0.0) -> bool:
     """Whether a fault of `mode` this size (its parameters' departures from their marks, the model's bias taken off)
     is no fault: a bolt within BOLT_TOLERANCE of its mark (an adjustment), or read tight by less than TIGHT_TOLERANCE
-    on a switch `loaded` by another present fault, and within SHORT_SHARE of the other bolt's departure (`other_bolt`,
-    present) more either way; an obstacle below OBSTACLE_TOLERANCE (what the model's error reads as one)."""
+    on a switch `loaded` by another present fault, and within SHORT_SHARE of how far short (`short_m`, in rod metres)
+    the throw started more either way; an obstacle below OBSTACLE_TOLERANCE (what the model's error reads as one)."""
     if mode in DRIVING_BOLT.values():
         offset = departures[MODE_PARAMETERS[mode][0]]
-        start = SHORT_SHARE * abs(other_bolt)
+        start = SHORT_SHARE * abs(short_m)
         return -(TIGHT_TOLERANCE if loaded else BOLT_TOLERANCE) - start < offset < BOLT_TOLERANCE + start
     if mode == "obstacle":
         return departures["obstacle_friction"] < OBSTACLE_TOLERANCE
@@ -824,12 +825,13 @@ class SwitchDiagnoser:
         specs = self.specs(direction)
         estimates = self.estimator.fit_all(
             prepared, specs, weight,
-            decide=lambda fits: judge(direction, fits, gains, self.evidence, self.negligible(fits, direction))[0],
+            decide=lambda fits: judge(direction, fits, gains, self.evidence,
+                                      self.negligible(fits, direction, start_rail))[0],
             warm=self._warm(previous, specs, direction),
             settled_mse=settled_mse(previous, m, base),
             slopes=None if previous is None else {mode: e.slopes for mode, e in previous.estimates.items()
                                                 if e.slopes is not None})
-        negligible = self.negligible(estimates, direction)
+        negligible = self.negligible(estimates, direction, start_rail)
         best, found = judge(direction, estimates, gains, self.evidence, negligible)
         explained = estimates[best] if best != "nominal" else estimates["nominal"]  # where it leaves the blades
         fitted = self.estimator.simulate(prepared, explained.values)
@@ -845,7 +847,7 @@ class SwitchDiagnoser:
         verdict = ThrowVerdict(throw.index, direction, shown, found, estimates, reported, end_rail, fitted, provisional,
                                base)
         # A throw that repairs a fault adds none: its other modes were tested against the switch with that fault.
-        repaired = self._repairs(direction, estimates, reported, gains, shown, judged)
+        repaired = self._repairs(direction, estimates, reported, gains, shown, judged, self.shortfall(start_rail, direction))
         added = None if repaired else self._additions(verdict, detected)
         self.latest[direction] = verdict.kept()
         self.rail_m = verdict.end_rail_m
@@ -918,10 +920,9 @@ class SwitchDiagnoser:
         blades lean on that bolt's face, and in the plant they follow it back from the throw's first instant; the
         reduced model, whose chairs hold no static friction, has them elsewhere when this throw's bolt meets the
         adjuster, and misfits the current there twenty times the noise (poly, a 50 mm left bolt): fitted anyway, such
-        a throw read a missing bearing of 3300 N·s/m as 400 to 700 and drive friction where there was none. Left short
-        by anything else (an obstacle that stalls the blades), the throw judges every mode but its own bolt, whose
-        engagement it misreads the same way (a 248 000 N·s/m obstacle's next throw read its bolt 21 mm tight, from the
-        current alone). A present obstacle is judged only by a throw whose blades passed it (one that stalls them short
+        a throw read a missing bearing of 3300 N·s/m as 400 to 700 and drive friction where there was none. Its own bolt
+        it reads within SHORT_SHARE of how far short it started (`small`), as it does when anything else left the blades
+        short (an obstacle that stalls them). A present obstacle is judged only by a throw whose blades passed it (one that stalls them short
         leaves the next throw, the other way, starting short of it: there it read as gone)."""
         modes = frozenset(candidate_modes(direction))
         obstacle = self.faults.get("obstacle")
@@ -930,14 +931,13 @@ class SwitchDiagnoser:
             low, high = sorted((start_rail_m, end_rail_m))
             if not low - OBSTACLE_REACH_M <= position <= high + OBSTACLE_REACH_M:
                 modes = modes - {"obstacle"}
-        if abs(start_rail_m - CLOSED_START_M[direction]) <= SHORT_START_M:
-            return modes
-        if DRIVING_BOLT[OTHER_DIRECTION[direction]] in self.faults:
+        if abs(start_rail_m - CLOSED_START_M[direction]) > SHORT_START_M and (
+                DRIVING_BOLT[OTHER_DIRECTION[direction]] in self.faults):
             return modes & {DRIVING_BOLT[direction]}
-        return modes - {DRIVING_BOLT[direction]}
+        return modes
 
     def _repairs(self, direction: str, estimates: dict[str, Estimate], reported: dict[str, Reported],
-                 gains: dict[str, float], shown: str, judged: frozenset[str]) -> list[str]:
+                 gains: dict[str, float], shown: str, judged: frozenset[str], short_m: float) -> list[str]:
         """The present faults this throw shows gone (fault_set.repaired); the others take this throw's estimates. A
         throw that shows a new fault (`shown`) bends the switch as it is (a bolt appearing put a present bearing of
         4000 N·s/m at 900 in it): there a fault is repaired only by a sudden drop of its size in the fit that adds the
@@ -949,7 +949,7 @@ class SwitchDiagnoser:
             report = reported[mode] if shown == "nominal" else self._report(direction, estimates[shown], (mode,))
             size = size_of(mode, report.params)
             size_std = float(np.hypot(report.fit_std.get(MAGNITUDE[mode], 0.0), self._reference_std(direction, mode)))
-            if repaired(fault, now, size, size_std, small(mode, report.params, self.loaded(mode), self.other_bolt(mode)),
+            if repaired(fault, now, size, size_std, small(mode, report.params, self.loaded(mode), short_m),
                         sudden_only=shown != "nominal"):
                 gone.append(mode)
                 del self.faults[mode]
@@ -1049,7 +1049,7 @@ class SwitchDiagnoser:
         self.standing = "cannot be commissioned as healthy: " + "; ".join(parts)
         return self.standing
 
-    def negligible(self, estimates: dict[str, Estimate], direction: str) -> list[str]:
+    def negligible(self, estimates: dict[str, Estimate], direction: str, start_rail_m: float) -> list[str]:
         """The modes whose fitted size is no fault: a bolt's or an obstacle's hypothesis fitted that small (`small`); a
         missing bearing or drive friction fitted within RETURN_SIGMAS of its reference (its fit's and the baselined
         level's spread together), whose fit beat the switch as it is by fitting the rest better, not by the fault (a
@@ -1067,18 +1067,14 @@ class SwitchDiagnoser:
                 spread = float(np.hypot(estimate.std.get(name, 0.0), self._reference_std(direction, mode)))
                 if departures[name] <= RETURN_SIGMAS * spread:
                     out.append(mode)
-            elif small(mode, departures, self.loaded(mode), self.other_bolt(mode)):
+            elif small(mode, departures, self.loaded(mode), self.shortfall(start_rail_m, direction)):
                 out.append(mode)
         return out
 
-    def other_bolt(self, mode: str) -> float:
-        """The departure of the other direction's bolt from its mark when `mode` is a bolt and that one is present."""
-        if mode not in DRIVING_BOLT.values():
-            return 0.0
-        other = next(bolt for bolt in DRIVING_BOLT.values() if bolt != mode)
-        fault = self.faults.get(other)
-        name = MODE_PARAMETERS[other][0]
-        return 0.0 if fault is None else fault.values[name] - self.mark(name)
+    def shortfall(self, start_rail_m: float, direction: str) -> float:
+        """How far short of the stock rail a throw starts, in rod travel (0 within SHORT_START_M)."""
+        short = abs(start_rail_m - CLOSED_START_M[direction])
+        return 0.0 if short <= SHORT_START_M else self.drive.linkage_ratio * short
 
     def loaded(self, mode: str) -> bool:
         """Whether the switch has a present fault besides `mode`."""

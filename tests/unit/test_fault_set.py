@@ -6,7 +6,13 @@ import pytest
 
 from railswitch.models.fault_set import Fault, Undecided, decide_between, describe_standing, repaired
 from railswitch.models.isolation import Evidence
-from railswitch.models.switch_diagnosis import BOLT_TOLERANCE, OBSTACLE_TOLERANCE, TIGHT_TOLERANCE, small
+from railswitch.models.switch_diagnosis import (
+    BOLT_TOLERANCE,
+    OBSTACLE_TOLERANCE,
+    SHORT_SHARE,
+    TIGHT_TOLERANCE,
+    small,
+)
 
 
 def bearing(size: float, std: float, presence: list[float]) -> Fault:
@@ -72,6 +78,13 @@ def test_a_bolt_back_within_its_adjustment_is_repaired_whatever_its_evidence():
 ])
 def test_which_bolt_offsets_are_an_adjustment_not_a_fault(offset, loaded, expected):
     assert small("right_bolt", {"right_bolt_offset": offset}, loaded) is expected
+
+
+def test_a_throw_starting_short_reads_its_bolt_within_a_share_of_the_shortfall():
+    short = 0.05  # rod travel: blades 25 mm short of the stock rail
+    assert small("left_bolt", {"left_bolt_offset": 0.9 * (BOLT_TOLERANCE + SHORT_SHARE * short)}, short_m=short)
+    assert small("left_bolt", {"left_bolt_offset": -0.9 * (BOLT_TOLERANCE + SHORT_SHARE * short)}, short_m=short)
+    assert not small("left_bolt", {"left_bolt_offset": 1.1 * (BOLT_TOLERANCE + SHORT_SHARE * short)}, short_m=short)
 
 
 def test_an_obstacle_below_its_tolerance_is_the_models_error_not_a_fault():

@@ -47,11 +47,12 @@ def test_the_switch_diagnoser_calls_bolts_within_tolerance_negligible_and_larger
     switch = SwitchDiagnoser.__new__(SwitchDiagnoser)
     switch.errors = ErrorModel(bias={"left_bolt_offset": 0.001})
     switch.baseline, switch.faults = Baseline(), {}
+    switch.drive = SimpleNamespace(linkage_ratio=2.0)
     small = _estimate("left_bolt", 0.5, {"left_bolt_offset": -BOLT_TOLERANCE + 0.0015})  # -3.5 mm less the bias
     large = _estimate("right_bolt", 0.5, {"right_bolt_offset": BOLT_TOLERANCE + 0.001})
-    assert switch.negligible({"left_bolt": small, "right_bolt": large}, "left_to_right") == ["left_bolt"]
+    assert switch.negligible({"left_bolt": small, "right_bolt": large}, "left_to_right", 1.0) == ["left_bolt"]
     assert switch.negligible({"left_bolt": _estimate("left_bolt", 0.5, {"left_bolt_offset": 0.0065})},
-                             "left_to_right") == []
+                             "left_to_right", 1.0) == []
 
 
 def test_evidence_from_the_samples_adds_up_over_throws_but_a_prior_saved_counts_once():
