@@ -131,9 +131,9 @@ TIGHT_TOLERANCE = 0.010
 # A throw that starts with the blades short of the stock rail (a loose bolt of the other direction, or an obstacle that
 # stalled them, left them there) reads its own bolt within this share of how far short it started, in rod travel (the
 # blades' times the linkage ratio), of its truth either way (SwitchDiagnoser._judged says why): 4 mm tight beside a
-# 50 mm left bolt, 6 to 35 mm loose beside right bolts of 116 to 174 mm (causal, benchmarks.fleet seed 1), 21 mm tight
-# after a 248 000 N·s/m obstacle stalled the blades (current only). A bolt that small there is not told from none.
-SHORT_SHARE = 0.2
+# 50 mm left bolt (a tenth of the shortfall), 6 to 44 mm loose beside right bolts of 116 to 186 mm (causal,
+# benchmarks.fleet seed 1: up to three tenths). A bolt that small there is not told from none.
+SHORT_SHARE = 0.35
 # An obstacle fitted below this friction is no fault: on healthy switches the obstacle's hypothesis reads the model's
 # error as one of 2000 to 2600 N·s/m at an end of the travel, and on a switch whose rollers lose 1.8 times the
 # population's, as 3500 to 4000 (seen with poly); a third of its maintenance limit (models/health.py), a tenth of the
@@ -1050,7 +1050,8 @@ class SwitchDiagnoser:
         return self.standing
 
     def negligible(self, estimates: dict[str, Estimate], direction: str, start_rail_m: float) -> list[str]:
-        """The modes whose fitted size is no fault: a bolt's or an obstacle's hypothesis fitted that small (`small`); a
+        """The modes whose fitted size is no fault: a bolt's or an obstacle's hypothesis fitted that small (`small`), an
+        obstacle where the throw's own loose bolt stops the blades (_at_short_end); a
         missing bearing or drive friction fitted within RETURN_SIGMAS of its reference (its fit's and the baselined
         level's spread together), whose fit beat the switch as it is by fitting the rest better, not by the fault (a
         near-stall obstacle's nominal fit stopped in a worse basin than the bearing's, and a bearing of zero was
@@ -1069,7 +1070,23 @@ class SwitchDiagnoser:
                     out.append(mode)
             elif small(mode, departures, self.loaded(mode), self.shortfall(start_rail_m, direction)):
                 out.append(mode)
+            elif mode == "obstacle" and self._at_short_end(direction, estimate.values["obstacle_position"]):
+                out.append(mode)
         return out
+
+    def _at_short_end(self, direction: str, position_m: float) -> bool:
+        """Whether an obstacle there sits where this throw's own loose bolt stops the blades short: the end of the
+        stroke, which the model misfits alike (a 186 mm right bolt stopped them at 1.093 m, where an obstacle of
+        20 000 N·s/m was fitted on every right-to-left throw)."""
+        bolt = self.faults.get(DRIVING_BOLT[direction])
+        if bolt is None:
+            return False
+        name = MODE_PARAMETERS[bolt.mode][0]
+        short = (bolt.values[name] - self.mark(name)) / self.drive.linkage_ratio
+        if short <= SHORT_START_M:
+            return False
+        end = CLOSED_START_M[OTHER_DIRECTION[direction]] + (short if direction == "right_to_left" else -short)
+        return abs(position_m - end) < OBSTACLE_REACH_M
 
     def shortfall(self, start_rail_m: float, direction: str) -> float:
         """How far short of the stock rail a throw starts, in rod travel (0 within SHORT_START_M)."""
