@@ -77,6 +77,9 @@ from railswitch.schemas.plant import PLANT_PARAMETERS
 
 CLOSED_START_M = {"left_to_right": 1.0, "right_to_left": 1.2}  # where a throw starts when the last one closed
 SHORT_START_M = 0.002  # a throw starting further than this from the stock rail starts short (SwitchDiagnoser._judged)
+# An obstacle fitted this close to where a throw's own loose bolt stops the blades short is that stroke end (within half
+# an obstacle's width: the ones seen sat within 1 mm of it; a real one 12 mm from it was found).
+STROKE_END_M = 0.006
 OBSTACLE_REACH_M = 0.024  # an obstacle drags the blades within two of its widths (models/faults.py: 12 mm) either side
 GAP_TOLERANCE = 0.25  # of a sample period, for "the samples are evenly spaced"
 # A throw ends when the point machine detects its end position, earlier or later than its reference profile
@@ -1086,7 +1089,7 @@ class SwitchDiagnoser:
         if short <= SHORT_START_M:
             return False
         end = CLOSED_START_M[OTHER_DIRECTION[direction]] + (short if direction == "right_to_left" else -short)
-        return abs(position_m - end) < OBSTACLE_REACH_M
+        return abs(position_m - end) < STROKE_END_M
 
     def shortfall(self, start_rail_m: float, direction: str) -> float:
         """How far short of the stock rail a throw starts, in rod travel (0 within SHORT_START_M)."""
