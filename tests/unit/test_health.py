@@ -72,6 +72,20 @@ def test_a_step_restarts_the_level_and_keeps_the_trend():
     assert bolt.slope_per_100 == pytest.approx(100 * before, rel=0.2)
 
 
+def test_a_step_against_the_trend_is_a_repair_and_the_trend_starts_afresh():
+    """A bearing grown at 300 N·s/m a throw and replaced without a word: two throws in a row far below are a step
+    against the trend, so its slope does not go on. Nine throws later the level is the new estimates' (under a tenth
+    of the limit), the trend flat within its uncertainty, and the state ok."""
+    tracker = HealthTracker()
+    grown = [300.0 * k for k in range(12)]
+    healths = feed(tracker, grown + [100.0] * 10, std=150.0, seed=4)
+    assert healths[11].parameters["bearing_friction"].state == "alarm"
+    last = healths[-1].parameters["bearing_friction"]
+    assert last.level < 0.1 * DEFAULT_LIMITS["bearing_friction"]
+    assert abs(last.slope_per_100) <= 2 * last.slope_std_per_100
+    assert last.state == "ok"
+
+
 def staircase(seed: int, name: str = "left_bolt_offset", std: float = 0.001):
     """A bolt working loose a few millimetres at a time (a step every 10 to 25 throws) to 1.3 times its limit,
     estimated by every other throw (those it drives): the truth before each throw and each throw's health."""
