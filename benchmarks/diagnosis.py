@@ -31,6 +31,8 @@ import numpy as np
 
 from benchmarks.common import emit, parser, pin_to_one_core
 from benchmarks.paper_de import PaperEstimator, paper_twin
+from railswitch.models.estimation import WITHOUT
+from railswitch.models.isolation import presence
 from railswitch.models.switch_diagnosis import SwitchDiagnoser, ThrowVerdict
 from railswitch.models.plant import Plant
 from railswitch.models.switch import SwitchSimulation
@@ -72,10 +74,18 @@ def draw_cases(seed: int, per_mode: int, nominal: int) -> list[tuple[str, dict[s
 
 
 def true_mode_estimate(switch: SwitchDiagnoser, mode: str) -> dict[str, float]:
-    """The true mode's estimate from the latest throw that shows it best."""
-    verdicts: list[ThrowVerdict] = list(switch.latest.values())
-    best = max(verdicts, key=lambda v: v.evidence[mode].ratio if mode in v.evidence else -1.0)
-    return best.reported[mode].params
+    """The true mode's estimate from the latest throw (of each direction) that shows it best: a new fault by its
+    evidence against the switch as it was, a present one by its presence (the switch as it is against the same
+    without it), which is how the throws after the one that confirmed it test it."""
+    def shown(v: ThrowVerdict) -> float:
+        if mode in v.evidence:
+            return v.evidence[mode].ratio
+        if WITHOUT + mode in v.estimates:
+            return presence(v.estimates, mode).ratio
+        return -1.0
+
+    verdicts = [v for v in switch.latest.values() if mode in v.reported]
+    return max(verdicts, key=shown).reported[mode].params
 
 
 def relative_errors(estimate: dict[str, float], truth: dict[str, float]) -> dict[str, float]:
