@@ -26,14 +26,13 @@ def shipped_models_only(tmp_path_factory):
     patch.undo()
 
 
-@pytest.fixture(autouse=True, scope="session")
-def own_state_directory(tmp_path_factory):
-    """Baselines the diagnosers of the tests commission (in this process and in every service process they
-    start) go to a folder of the session, never into the developer's ~/.local/state."""
-    patch = pytest.MonkeyPatch()
-    patch.setenv("RAILSWITCH_STATE", str(tmp_path_factory.mktemp("state")))
-    yield
-    patch.undo()
+@pytest.fixture(autouse=True)
+def own_state_directory(tmp_path_factory, monkeypatch):
+    """Baselines the diagnosers of a test commission (in this process and in every service process it starts) go
+    to a folder of that test: never into the developer's ~/.local/state, and never into another test's. A diagnoser
+    resumes every switch it finds there, present faults included, and tests reuse switch ids (sw1 with an obstacle
+    in one test was still carrying it in the next)."""
+    monkeypatch.setenv("RAILSWITCH_STATE", str(tmp_path_factory.mktemp("state")))
 
 
 @pytest.fixture(scope="session")
