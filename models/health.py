@@ -98,25 +98,23 @@ class TrendFilter:
     updates: int = 0
     q: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
     surprised: int = 0  # the sign of the last throw's innovation when it was an outlier, else 0
-    turned: bool = False  # the latest step went against the trend: a repair (update)
 
     def predict(self) -> None:
         f = np.array([[1.0, 1.0], [0.0, 1.0]])
         self.x = f @ self.x
         self.p = f @ self.p @ f.T + self.q
 
-    def update(self, value: float, variance: float) -> tuple[bool, bool]:
+    def update(self, value: float, variance: float) -> tuple[bool, bool, bool]:
         """Fuse one estimate. An innovation beyond SURPRISE standard deviations counts as at most that (Huber),
         so one odd throw barely moves the filter; two in a row on the same side are a step: the level restarts
         there. A step the way the trend goes keeps the trend (a staircase); one against a trend the slope shows is a
         repair (`turned`), and the trend starts afresh: a bearing grown at 300 N·s/m a throw and replaced without a
         word kept its slope and read 14 % of its limit nine throws later, on estimates under 4 %. Returns whether the
-        estimate was taken for an outlier, and whether it confirmed a step."""
-        self.turned = False
+        estimate was taken for an outlier, whether it confirmed a step, and whether that step turned the trend."""
         if self.updates == 0:  # the first estimate sets the level; the slope is still unknown
             self._restart(value, variance)
             self.updates += 1
-            return False, False
+            return False, False, False
         innovation = value - self.x[0]
         s = float(self.p[0, 0]) + variance
         ratio = abs(innovation) / np.sqrt(s)
@@ -125,11 +123,11 @@ class TrendFilter:
             sign = int(np.sign(innovation))
             if self.surprised == sign:
                 # against a trend the slope shows (beyond TURN_SIGMAS of it), the step is a repair, not a stair
-                self.turned = bool(sign * self.x[1] < -TURN_SIGMAS * np.sqrt(max(self.p[1, 1], 0.0)))
-                self._restart(value, variance, keep_slope=not self.turned)
+                turned = bool(sign * self.x[1] < -TURN_SIGMAS * np.sqrt(max(self.p[1, 1], 0.0)))
+                self._restart(value, variance, keep_slope=not turned)
                 self.surprised = 0
                 self.updates += 1
-                return False, True
+                return False, True, turned
             self.surprised = sign
             variance = variance * (ratio / SURPRISE) ** 2
             s = float(self.p[0, 0]) + variance
@@ -139,7 +137,7 @@ class TrendFilter:
         self.x = self.x + gain * innovation
         self.p = self.p - np.outer(gain, self.p[0, :])
         self.updates += 1
-        return outlier, False
+        return outlier, False, False
 
     def to_dict(self) -> dict:
         return {"x": self.x.tolist(), "p": self.p.tolist(), "updates": self.updates, "surprised": self.surprised}
@@ -369,8 +367,8 @@ class HealthTracker:
             if name in estimates:
                 value, std = estimates[name]
                 variance = max(std, 1e-12) ** 2
-                outlier, step = tracker.update(value, variance)
-                if tracker.turned:  # the growth so far is over: the history starts at the step
+                outlier, step, turned = tracker.update(value, variance)
+                if turned:  # the growth so far is over: the history starts at the step
                     self.histories[name] = History(pending=self.histories[name].pending)
                 self.histories[name].record(throw_index, value, variance, outlier, step)
             out[name] = self._health(name, tracker, self.histories[name].broken_stick(throw_index), step)

@@ -850,7 +850,8 @@ class SwitchDiagnoser:
         verdict = ThrowVerdict(throw.index, direction, shown, found, estimates, reported, end_rail, fitted, provisional,
                                base)
         # A throw that repairs a fault adds none: its other modes were tested against the switch with that fault.
-        repaired = self._repairs(direction, estimates, reported, gains, shown, judged, self.shortfall(start_rail, direction))
+        repaired = self._repairs(direction, estimates, reported, gains, shown, judged,
+                                 self.shortfall(start_rail, direction))
         added = None if repaired else self._additions(verdict, detected)
         self.latest[direction] = verdict.kept()
         self.rail_m = verdict.end_rail_m
@@ -923,10 +924,11 @@ class SwitchDiagnoser:
         blades lean on that bolt's face, and in the plant they follow it back from the throw's first instant; the
         reduced model, whose chairs hold no static friction, has them elsewhere when this throw's bolt meets the
         adjuster, and misfits the current there twenty times the noise (poly, a 50 mm left bolt): fitted anyway, such
-        a throw read a missing bearing of 3300 N·s/m as 400 to 700 and drive friction where there was none. Its own bolt
-        it reads within SHORT_SHARE of how far short it started (`small`), as it does when anything else left the blades
-        short (an obstacle that stalls them). A present obstacle is judged only by a throw whose blades passed it (one that stalls them short
-        leaves the next throw, the other way, starting short of it: there it read as gone)."""
+        a throw read a missing bearing of 3300 N·s/m as 400 to 700 and drive friction where there was none. Its own
+        bolt it reads within SHORT_SHARE of how far short it started (`small`), as it does when anything else left the
+        blades short (an obstacle that stalls them). A present obstacle is judged only by a throw whose blades passed it
+        (one that stalls them short leaves the next throw, the other way, starting short of it: there it read as
+        gone)."""
         modes = frozenset(candidate_modes(direction))
         obstacle = self.faults.get("obstacle")
         if obstacle is not None:  # a present obstacle the blades did not pass in this throw is not seen by it
@@ -1054,11 +1056,10 @@ class SwitchDiagnoser:
 
     def negligible(self, estimates: dict[str, Estimate], direction: str, start_rail_m: float) -> list[str]:
         """The modes whose fitted size is no fault: a bolt's or an obstacle's hypothesis fitted that small (`small`), an
-        obstacle where the throw's own loose bolt stops the blades (_at_short_end); a
-        missing bearing or drive friction fitted within RETURN_SIGMAS of its reference (its fit's and the baselined
-        level's spread together), whose fit beat the switch as it is by fitting the rest better, not by the fault (a
-        near-stall obstacle's nominal fit stopped in a worse basin than the bearing's, and a bearing of zero was
-        confirmed)."""
+        obstacle where the throw's own loose bolt stops the blades (_at_short_end); a missing bearing or drive friction
+        fitted within RETURN_SIGMAS of its reference (its fit's and the baselined level's spread together), whose fit
+        beat the switch as it is by fitting the rest better, not by the fault (a near-stall obstacle's nominal fit
+        stopped in a worse basin than the bearing's, and a bearing of zero was confirmed)."""
         out = []
         for mode in MODE_PARAMETERS:
             if mode not in estimates:
