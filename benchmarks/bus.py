@@ -248,8 +248,8 @@ class RecordObserver:
         self._subscribers = [
             session.declare_subscriber("railswitch/*/record", self._record),
             session.declare_subscriber("railswitch/*/diagnosis", self._diagnosis),
-            session.declare_subscriber("railswitch/service/diagnoser/*/status", self._status),
-            session.liveliness().declare_subscriber("railswitch/service/diagnoser/*", self._live, history=True)]
+            session.declare_subscriber("railswitch/@service/diagnoser/*/status", self._status),
+            session.liveliness().declare_subscriber("railswitch/@service/diagnoser/*", self._live, history=True)]
 
     def _record(self, sample) -> None:
         now = time.monotonic()
