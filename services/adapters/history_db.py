@@ -143,6 +143,11 @@ class HistoryDb:
             (switch_id, kind, since_ns or 0, MAX_TIME_NS if until_ns is None else until_ns, limit + 1))
         return [payload for (payload,) in reversed(rows[:limit])], len(rows) > limit
 
+    def throw_indices(self, switch_id: str, kind: str) -> list[int]:
+        """The throw index of every row of one switch and kind (a throw stored twice, twice)."""
+        return [index for (index,) in self._read("SELECT throw_index FROM history WHERE switch_id = ? AND kind = ?",
+                                                  (switch_id, kind))]
+
     def holds(self, switch_id: str) -> bool:
         return bool(self._read("SELECT 1 FROM history WHERE switch_id = ? LIMIT 1", (switch_id,)))
 
