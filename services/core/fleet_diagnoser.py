@@ -116,6 +116,11 @@ class Diagnoser:
             self.switches[switch_id] = switch
         return self.switches[switch_id]
 
+    def forget(self, switch_id: str) -> None:
+        """Drop a switch held here; its next throw resumes it from its latest stored state."""
+        self.switches.pop(switch_id, None)
+        self.last_throws.pop(switch_id, None)
+
     def commission(self, switch_id: str, accept: bool = False) -> dict[str, dict[str, float]]:
         """Restart a switch's commissioning (after maintenance), or with `accept` take the switch as it now is as its
         own (its present faults become its baseline); returns what was accepted."""

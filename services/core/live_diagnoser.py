@@ -114,7 +114,7 @@ class LiveDiagnoser:
         """After the live set changed: forget the switches no longer this one's (when one comes back it resumes
         from the latest state on the bus) and take over the held throws whose owner left."""
         for switch_id in [s for s in self.diagnoser.switches if not self.ownership.is_mine(s)]:
-            del self.diagnoser.switches[switch_id]
+            self.diagnoser.forget(switch_id)
         for held in self.held.orphaned(self.ownership.members):
             owner = self.ownership.owner(held.throw.switch_id, held.started_s)
             if owner == self.ownership.me:
@@ -216,7 +216,7 @@ class LiveDiagnoser:
             return
         self._seen.add(state.switch_id)
         if state.switch_id in self.diagnoser.switches and (latest is None or state.t_ns > latest[1]):
-            del self.diagnoser.switches[state.switch_id]
+            self.diagnoser.forget(state.switch_id)
 
     def _commission(self, command: CommissionCommand, key: str) -> None:
         switch_id = command.switch_id
