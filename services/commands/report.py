@@ -178,6 +178,7 @@ def write_report(recordings: list[str], out_dir: str, model: str | None = None, 
     velocity. Health comes from `db` when given, else from the single recording's health messages, else from
     its offline diagnosis (with `model`).
     """
+    healths = health_from_db(db) if db else None  # a store that cannot be read stops it before DIR is made
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     by_index: dict[tuple[str, int, str], list[tuple[str, CutThrow]]] = defaultdict(list)
@@ -191,9 +192,7 @@ def write_report(recordings: list[str], out_dir: str, model: str | None = None, 
     single = len(recordings) == 1
     fits = diagnosed(messages, model) if model and single else {}
     written = [throw_picture(out, key, curves, fits.get(key[:2]), model) for key, curves in sorted(by_index.items())]
-    if db:
-        healths = health_from_db(db)
-    else:
+    if healths is None:
         recorded = [m for m in messages if isinstance(m, SwitchHealth)] if single else []
         healths = recorded or [item.health for item in fits.values() if item.health is not None]
     return written + life_pictures(out, healths, fits)
