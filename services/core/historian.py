@@ -78,7 +78,8 @@ class Historian:
     """Turns received payloads into history rows of this historian's switches and writes each batch in one
     transaction. Junk is counted per reason by the intake and never stored."""
 
-    def __init__(self, db: HistoryStore, ownership: Ownership | None = None, clock: Callable[[], float] = time.monotonic):
+    def __init__(self, db: HistoryStore, ownership: Ownership | None = None,
+                 clock: Callable[[], float] = time.monotonic):
         """Without ownership every switch is this historian's."""
         self.db = db
         self.ownership = ownership or FixedShard((1, 1), "this historian")
