@@ -32,6 +32,18 @@ real switch throws about 100 times a day):
    diagnosis's. With `--elastic` a third diagnoser joins mid-run and one of the first two is then
    killed with -9; `settle_s` is how long after each event every live diagnoser reports the new
    live set (status every 0.2 s), and the throws it held in flight must be diagnosed by the others.
+
+`--records --outage S` measures catching up instead (docs/contracts.md section 3): `--fleet` switches
+(default 200) throwing as real switches do, every switch once per 15 simulated minutes, sped up
+`--speed` times (default 30), into two elastic diagnosers sharing one state folder (one host's) and a
+historian (`--db`, default an SQLite file in the scratch folder). After a quarter of `--paced-s`, every
+diagnoser is killed with -9; S simulated seconds later (S / speed of wall time) two new ones start.
+`undiagnosed` counts the throws published that no diagnosis followed, `stored_twice` the throws the
+history holds more than one diagnosis of, `missed` what the diagnosers reported missed (throws older
+than the simulator's cache, which it sizes from S); `down_simulated_s` is the whole outage, from the
+kill to the new diagnosers' readiness, in the switches' time. `catch_up_s` runs from that readiness to
+the diagnosis of the last throw published while they were down, and `cleared_per_s` is those throws
+over it.
 """
 from __future__ import annotations
 
@@ -51,6 +63,7 @@ import zenoh
 from benchmarks.common import emit, parser
 from railswitch.schemas import Diagnosis, MotorSample, ServiceStatus, ThrowEvent, ThrowRecord, decode
 from railswitch.services.adapters.zenoh_bus import BusOptions, open_session
+from railswitch.services.adapters.history_store import open_history
 from railswitch.services.adapters.recordings import RecordingWriter, load_recording
 from railswitch.services.adapters.processes import (
     ServiceProcesses,
@@ -173,14 +186,24 @@ def main() -> None:
     p.add_argument("--fleet", type=int, default=2000, help="with --records: switches of the paced run")
     p.add_argument("--load", type=float, default=0.4, help="with --records: paced load, fraction of capacity")
     p.add_argument("--paced-s", type=float, default=None, help="with --records: paced run (default 40 s, 60 elastic)")
+    p.add_argument("--outage", type=float, default=None, metavar="S",
+                   help="with --records: every diagnoser down for S simulated seconds, then back (see above)")
+    p.add_argument("--speed", type=float, default=30.0, help="with --outage: the fleet's speed-up")
+    p.add_argument("--db", default=None, help="with --outage: the historian's database (default a scratch SQLite file)")
     args = p.parse_args()
     for wrong, message in ((args.elastic and not args.records, "--elastic needs --records"),
+                           (args.outage is not None and not args.records, "--outage needs --records"),
+                           (args.outage is not None and not 0 < args.outage <= 86_400,
+                            f"--outage {args.outage} is outside the accepted range 0 to 86400 s"),
                            (args.commissioning < 0, f"--commissioning {args.commissioning} is outside the accepted range"
                                                     " 0 or more throws per switch"),
                            (args.burst_throws < 1, f"--burst-throws {args.burst_throws} is outside the accepted range"
                                                    " 1 or more throws per switch")):
         if wrong:
             p.exit(2, f"{p.prog}: error: {message}\n")  # one line, as the services' commands give
+    if args.records and args.outage is not None:
+        emit(outage_benchmark(args), args.json)
+        return
     if args.records:
         emit(records_benchmark(args), args.json)
         return
@@ -248,8 +271,8 @@ class RecordObserver:
         self._subscribers = [
             session.declare_subscriber("railswitch/*/record", self._record),
             session.declare_subscriber("railswitch/*/diagnosis", self._diagnosis),
-            session.declare_subscriber("railswitch/service/diagnoser/*/status", self._status),
-            session.liveliness().declare_subscriber("railswitch/service/diagnoser/*", self._live, history=True)]
+            session.declare_subscriber("railswitch/@service/diagnoser/*/status", self._status),
+            session.liveliness().declare_subscriber("railswitch/@service/diagnoser/*", self._live, history=True)]
 
     def _record(self, sample) -> None:
         now = time.monotonic()
@@ -437,6 +460,74 @@ def records_benchmark(args) -> dict:
     if args.elastic:
         result["settle_s"] = {"join": paced["join_settle_s"], "kill": paced["kill_settle_s"]}
     return {**result, "capacity": capacity, "paced": paced}
+
+
+def outage_benchmark(args) -> dict:
+    fleet_size = args.fleet if args.fleet != 2000 else 200  # the paced run's default is a capacity fleet
+    run_s = args.paced_s or 60.0
+    with routed_bus() as (work, library, processes, endpoint, session):
+        observer = RecordObserver(session)
+        db = args.db or str(work / "history.sqlite")
+        state = str(work / "state")
+
+        def diagnosers() -> list:
+            started = [processes.start("diagnoser", "--connect", endpoint, "--state", state, "--status-interval",
+                                       STATUS_S) for _ in range(2)]
+            wait_ready(session, processes, diagnoser=2)
+            return started
+
+        first = diagnosers()
+        processes.start("historian", "--connect", endpoint, "--db", db)
+        wait_ready(session, processes, historian=1)
+        scenario = processes.log_dir / "outage.toml"
+        scenario.write_text(f"interval_s = {RECORD_INTERVAL_S}\n" + "".join(
+            f'[[switches]]\nid = "sw{k + 1}"\nthrows = 1000\n' for k in range(fleet_size)))
+        fleet = processes.start("simulator", "--connect", endpoint, "--as-records", "--scenario", str(scenario),
+                                "--speed", f"{args.speed:g}", "--throws-from", str(library), "--outage",
+                                f"{args.outage:g}", "--status-interval", "5")
+        time.sleep(run_s / 4)
+        killed_s = time.monotonic()
+        for process in first:
+            processes.stop(process, signal.SIGKILL)
+        time.sleep(max(args.outage / args.speed - (time.monotonic() - killed_s), 0.0))
+        second = diagnosers()
+        ready_s = time.monotonic()
+        with observer.lock:
+            while_down = [k for k, at_s in observer.records.items() if killed_s <= at_s <= ready_s]
+        try:
+            wait_for(lambda: all(k in observer.diagnoses for k in while_down), 300, "the outage's throws diagnosed")
+        except TimeoutError:
+            pass
+        with observer.lock:
+            caught = [observer.diagnoses[k] for k in while_down if k in observer.diagnoses]
+        catch_up_s = max(caught, default=ready_s) - ready_s
+        time.sleep(max(killed_s + run_s * 3 / 4 - time.monotonic(), 5.0))
+        processes.stop(fleet)
+        try:
+            wait_for(lambda: observer.undiagnosed() == 0, 120, "every throw's diagnosis")
+        except TimeoutError:
+            pass
+        time.sleep(2.0)  # the historian's last batch
+        counters = [observer.latest_counters(instance_of(d)) for d in second]
+        stored, stored_twice = history_counts(db)
+        return {"records": True, "outage_s": args.outage, "fleet": fleet_size, "speed": args.speed,
+                "throws": len(observer.records), "undiagnosed": observer.undiagnosed(),
+                "stored": stored, "stored_twice": stored_twice, "diagnosed_twice_on_bus": observer.duplicates,
+                "missed": sum(c.get("missed", 0) for c in counters),
+                "missed_samples": sum(c.get("missed_samples", 0) for c in counters),
+                "already_diagnosed": sum(c.get("already_diagnosed", 0) for c in counters),
+                "down_simulated_s": round((ready_s - killed_s) * args.speed, 1),
+                "throws_while_down": len(while_down), "catch_up_s": round(catch_up_s, 2),
+                "cleared_per_s": round(len(while_down) / catch_up_s, 2) if catch_up_s > 0 else None}
+
+
+def history_counts(db: str) -> tuple[int, int]:
+    """(diagnoses stored, throws with more than one stored diagnosis) in the historian's database (a file or a
+    postgresql:// URL)."""
+    with open_history(db, create=False) as history:
+        rows = [(switch_id, index) for switch_id in history.switches()
+                for index in history.throw_indices(switch_id, "diagnosis")]
+    return len(rows), len(rows) - len(set(rows))
 
 
 if __name__ == "__main__":

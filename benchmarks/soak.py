@@ -9,6 +9,12 @@ for runs under two minutes) and just before stopping; `cpu_percent` covers the s
 window (100 = one core) and `others_cpu_percent` is what everything else on the machine,
 this benchmark included, used then (to a few percent, so it can read slightly negative).
 `achieved_speed` is simulated over wall time between the first and the last end event.
+
+`--records` soaks the fleet topology instead: `--switches` switches (default 200) sending each throw as
+one record, once per 15 simulated minutes as real switches throw, at `--speed` (default 10), into two
+elastic diagnosers and two elastic historians writing one database (`--db`, a PostgreSQL URL, or by
+default an SQLite file in the scratch folder). `lost` is throws published without a diagnosis plus
+diagnoses published that the database does not hold; `stored_twice` throws it holds more than once.
 """
 from __future__ import annotations
 
@@ -151,12 +157,72 @@ def rejected(processes: ServiceProcesses, process: subprocess.Popen) -> int:
     return sum(ast.literal_eval(found[-1]).values()) if found and found[-1] != "nothing" else 0
 
 
+def records_soak(args) -> dict:
+    """The fleet topology for --minutes (see the module's docstring)."""
+    from benchmarks.bus import RECORD_INTERVAL_S, RecordObserver, history_counts, routed_bus
+
+    run_s = 60.0 * args.minutes
+    first_s = 60.0 if args.minutes >= 2 else run_s / 3
+    with routed_bus() as (work, library, processes, endpoint, session):
+        observer = RecordObserver(session)
+        db = args.db or str(work / "history.sqlite")
+        started = {f"diagnoser-{k}": processes.start("diagnoser", "--connect", endpoint, "--state", str(work / "state"))
+                   for k in (1, 2)}
+        started |= {f"historian-{k}": processes.start("historian", "--connect", endpoint, "--db", db) for k in (1, 2)}
+        wait_ready(session, processes, diagnoser=2, historian=2)
+        scenario = work / "fleet.toml"
+        scenario.write_text(f"interval_s = {RECORD_INTERVAL_S}\n" + "".join(
+            f'[[switches]]\nid = "sw{k + 1}"\nthrows = 100000\n' for k in range(args.switches)))
+        started["simulator"] = processes.start("simulator", "--connect", endpoint, "--as-records", "--scenario",
+                                               str(scenario), "--speed", f"{args.speed:g}", "--throws-from",
+                                               str(library))
+        pids = {name: process.pid for name, process in started.items()}
+        t0 = time.monotonic()
+        time.sleep(first_s)
+        first = probe(pids)
+        time.sleep(max(t0 + run_s - time.monotonic(), 0.0))
+        last = probe(pids)
+        processes.stop(started["simulator"])
+        deadline = time.monotonic() + DRAIN_TIMEOUT_S
+        while observer.undiagnosed() and time.monotonic() < deadline:
+            time.sleep(0.5)
+        time.sleep(3.0)  # the historians' last batches
+        exited = {name: process.returncode for name, process in started.items()
+                  if process.pid not in processes.stopped and process.poll() is not None}
+        for name in ("diagnoser-1", "diagnoser-2", "historian-1", "historian-2"):
+            processes.stop(started[name])
+        stored, stored_twice = history_counts(db)
+    with observer.lock:
+        throws, diagnosed = len(observer.records), len(observer.diagnoses)
+    latencies = observer.latencies_ms()
+    window_s = last.at_s - first.at_s
+    return {
+        "records": True, "minutes": args.minutes, "switches": args.switches, "speed": args.speed,
+        "throws": throws, "diagnoses": diagnosed, "stored": stored, "stored_twice": stored_twice,
+        "lost": observer.undiagnosed() + max(diagnosed - (stored - stored_twice), 0),
+        "rss_mb": {name: [round(first.rss_mb[name], 1), round(last.rss_mb[name], 1)] for name in pids},
+        "rss_growth": {name: round(100 * (last.rss_mb[name] / first.rss_mb[name] - 1), 1) for name in pids},
+        "latency_ms": {"p50": round(statistics.median(latencies), 1),
+                       "p95": round(float(np.percentile(latencies, 95)), 1)} if latencies else None,
+        "cpu_percent": {name: round(100 * (last.cpu_s[name] - first.cpu_s[name]) / window_s) for name in pids},
+        "exited": exited,
+        "db": "postgresql" if db.startswith(("postgresql:", "postgres:")) else "sqlite",
+    }
+
+
 def main() -> None:
     p = parser(__doc__.splitlines()[0])
     p.add_argument("--minutes", type=float, default=5.0, help="wall time with the simulator running")
-    p.add_argument("--switches", type=int, default=20)
-    p.add_argument("--speed", type=float, default=SPEED, help="x real time")
+    p.add_argument("--switches", type=int, default=None, help="default 20, 200 with --records")
+    p.add_argument("--speed", type=float, default=None, help=f"x real time (default {SPEED:g}, 10 with --records)")
+    p.add_argument("--records", action="store_true", help="the fleet topology as records (see above)")
+    p.add_argument("--db", default=None, help="with --records: the historians' database")
     args = p.parse_args()
+    if args.records:
+        args.switches, args.speed = args.switches or 200, args.speed or 10.0
+        emit(records_soak(args), args.json)
+        return
+    args.switches, args.speed = args.switches or 20, args.speed or SPEED
     run_s = 60.0 * args.minutes
     first_s = 60.0 if args.minutes >= 2 else run_s / 3
     throws = math.ceil(run_s * args.speed / INTERVAL_S) + 1  # one more: still throwing when stopped

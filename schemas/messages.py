@@ -380,7 +380,7 @@ class SwitchState(Message):
 
 
 class ServiceStatus(Message):
-    """What a live service reports every few seconds on railswitch/service/<service>/<instance>/status."""
+    """What a live service reports every few seconds on railswitch/@service/<service>/<instance>/status."""
 
     service: Annotated[str, Field(pattern=r"^[a-z]{1,32}$")]
     instance: SwitchId
@@ -405,7 +405,9 @@ CHANNEL_MODELS: dict[str, type[Message]] = {
 }
 
 KEY_PREFIX = "railswitch"
-SERVICE_PREFIX = f"{KEY_PREFIX}/service"  # liveliness tokens and status of the services
+# Liveliness tokens and status of the services. `@service` is a verbatim chunk: no wildcard matches it, so neither
+# railswitch/** nor railswitch/*/<kind> sees what is published there, and no switch id can be it.
+SERVICE_PREFIX = f"{KEY_PREFIX}/@service"
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"  # where a service looks for its router unless told otherwise
 
 

@@ -20,6 +20,7 @@ URL_SCHEMES = ("postgresql://", "postgres://")
 # The reads of both stores, `?` for a parameter; {table} is the store's table.
 LATEST_SQL = ("SELECT payload FROM {table} WHERE switch_id = ? AND kind = ? AND t_ns >= ? AND t_ns < ? "
               "ORDER BY t_ns DESC LIMIT ?")
+THROW_INDICES_SQL = "SELECT throw_index FROM {table} WHERE switch_id = ? AND kind = ?"
 HOLDS_SQL = "SELECT 1 FROM {table} WHERE switch_id = ? LIMIT 1"
 SWITCHES_SQL = "SELECT DISTINCT switch_id FROM {table}"
 COUNT_SQL = "SELECT count(*) FROM {table}"
@@ -68,6 +69,10 @@ class HistoryStore:
         rows = self._read(LATEST_SQL.format(table=self.table),
                           (switch_id, kind, since_ns or 0, MAX_TIME_NS if until_ns is None else until_ns, limit + 1))
         return [payload for (payload,) in reversed(rows[:limit])], len(rows) > limit
+
+    def throw_indices(self, switch_id: str, kind: str) -> list[int]:
+        """The throw index of every row of one switch and kind (a throw stored twice, twice)."""
+        return [index for (index,) in self._read(THROW_INDICES_SQL.format(table=self.table), (switch_id, kind))]
 
     def holds(self, switch_id: str) -> bool:
         return bool(self._read(HOLDS_SQL.format(table=self.table), (switch_id,)))

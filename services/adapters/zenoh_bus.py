@@ -20,8 +20,9 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, NamedTuple
 
 import zenoh
+import zenoh.ext
 
-from railswitch.schemas import DEFAULT_ENDPOINT, SERVICE_PREFIX, Message, ServiceStatus, encode
+from railswitch.schemas import DEFAULT_ENDPOINT, KEY_PREFIX, SERVICE_PREFIX, Message, ServiceStatus, encode
 
 if TYPE_CHECKING:  # the intake module imports this one
     from railswitch.services.core.intake import Intake
@@ -33,6 +34,10 @@ RETRY_S = 1.0
 # An elastic service's session lease: one gone silent (hung, host down) leaves its live set after this, one killed
 # at once (its connection closes).
 ELASTIC_LEASE_MS = 3000
+# Catch-up (docs/contracts.md section 3, Catching up): a publisher of throws keeps each switch's latest ones in a cache
+# that subscribers which were down, or start late, ask for; a heartbeat after new samples lets a live subscriber
+# notice a sample it missed and fetch it from the cache.
+HEARTBEAT_S = 1.0
 
 
 class BusError(RuntimeError):
@@ -125,12 +130,12 @@ def instance_name(pid: int | None = None) -> str:
 
 
 def declare_service(session: zenoh.Session, name: str) -> zenoh.LivelinessToken:
-    """Liveliness token railswitch/service/<name>/<instance> (docs/contracts.md section 3)."""
+    """Liveliness token railswitch/@service/<name>/<instance> (docs/contracts.md section 3)."""
     return session.liveliness().declare_token(f"{SERVICE_PREFIX}/{name}/{instance_name()}")
 
 
 class LivelinessWatch:
-    """The live instances of a service (tokens railswitch/service/<name>/<instance>): those present now, then
+    """The live instances of a service (tokens railswitch/@service/<name>/<instance>): those present now, then
     every join and leave, queued by the callback with its arrival time for the service's own loop. A session that
     dies takes its token with it: at once when its connection closes, after its lease when it goes silent."""
 
@@ -220,22 +225,34 @@ def query_all(session: zenoh.Session, key: str, timeout_s: float) -> list[Receiv
 
 
 class Publishers:
-    """One declared publisher per key, JSON-encoded, blocking rather than dropping under congestion."""
+    """One declared publisher per key, JSON-encoded, blocking rather than dropping under congestion. The keys of the
+    kinds in `cached` (kind -> samples per key) get Zenoh advanced publishers that keep that many latest samples for
+    subscribers that were down or start late (Inbox `catch_up`)."""
 
-    def __init__(self, session: zenoh.Session, *, congestion: zenoh.CongestionControl = zenoh.CongestionControl.BLOCK):
+    def __init__(self, session: zenoh.Session, *, congestion: zenoh.CongestionControl = zenoh.CongestionControl.BLOCK,
+                 cached: dict[str, int] | None = None):
         self._session = session
         self._congestion = congestion
-        self._publishers: dict[str, zenoh.Publisher] = {}
+        self._cached = cached or {}
+        self._publishers: dict[str, zenoh.Publisher | zenoh.ext.AdvancedPublisher] = {}
         self.published = 0
 
     def put(self, key: str, message: Message | bytes) -> None:
         publisher = self._publishers.get(key)
         if publisher is None:
-            publisher = self._session.declare_publisher(key, encoding=zenoh.Encoding.APPLICATION_JSON,
-                                                        congestion_control=self._congestion)
-            self._publishers[key] = publisher
+            publisher = self._publishers[key] = self._declare(key)
         publisher.put(message if isinstance(message, bytes) else encode(message))
         self.published += 1
+
+    def _declare(self, key: str) -> zenoh.Publisher | zenoh.ext.AdvancedPublisher:
+        kept = self._cached.get(key.rsplit("/", 1)[-1])
+        if not kept:
+            return self._session.declare_publisher(key, encoding=zenoh.Encoding.APPLICATION_JSON,
+                                                   congestion_control=self._congestion)
+        return zenoh.ext.declare_advanced_publisher(
+            self._session, key, encoding=zenoh.Encoding.APPLICATION_JSON, congestion_control=self._congestion,
+            cache=zenoh.ext.CacheConfig(kept), publisher_detection=True,
+            sample_miss_detection=zenoh.ext.MissDetectionConfig(sporadic_heartbeat=HEARTBEAT_S))
 
 
 class Received(NamedTuple):
@@ -247,14 +264,41 @@ class Received(NamedTuple):
 
 
 class Inbox:
-    """Subscriptions whose callbacks only enqueue; the service drains the queue in its own thread."""
+    """Subscriptions whose callbacks only enqueue; the service drains the queue in its own thread.
 
-    def __init__(self, session: zenoh.Session, keys: list[str]):
+    The kinds in `catch_up` (railswitch/*/<kind>) come through Zenoh advanced subscribers instead (and not through a
+    plain subscription that would also match them): on start they ask every publisher's cache for what it kept (the throws published
+    while this service was down), and once running they fetch from the cache a sample they notice they missed.
+    Samples older than a cache holds are gone; Zenoh's count of them is `missed` (per publisher), logged once per
+    publisher, and the services tell which throws they were by the gap in each switch's throw indices."""
+
+    def __init__(self, session: zenoh.Session, keys: list[str], catch_up: tuple[str, ...] = ()):
         self.queue: queue.SimpleQueue[Received] = queue.SimpleQueue()
-        self._subscribers = [session.declare_subscriber(key, self._on_sample) for key in keys]
+        self.missed = 0
+        self._missed_from: set[str] = set()
+        self._catch_up = tuple(f"/{kind}" for kind in catch_up)
+        self._subscribers = [session.declare_subscriber(key, self._on_live if catch_up else self._on_sample)
+                             for key in keys]
+        self._advanced = [zenoh.ext.declare_advanced_subscriber(
+            session, f"{KEY_PREFIX}/*/{kind}", self._on_sample,
+            history=zenoh.ext.HistoryConfig(detect_late_publishers=True),
+            recovery=zenoh.ext.RecoveryConfig(heartbeat=True), subscriber_detection=True) for kind in catch_up]
+        self._miss_listeners = [subscriber.sample_miss_listener(self._on_miss) for subscriber in self._advanced]
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         self.queue.put(Received(str(sample.key_expr), sample.payload.to_bytes(), time.monotonic()))
+
+    def _on_live(self, sample: zenoh.Sample) -> None:
+        if not str(sample.key_expr).endswith(self._catch_up):  # those come through the advanced subscribers
+            self._on_sample(sample)
+
+    def _on_miss(self, miss: zenoh.ext.Miss) -> None:
+        self.missed += miss.nb
+        source = str(miss.source)
+        if source not in self._missed_from:
+            self._missed_from.add(source)
+            log.warning("%d sample(s) of publisher %s were missed and are no longer in its cache (further misses "
+                        "of it are counted)", miss.nb, source)
 
     def get(self, timeout_s: float) -> Received | None:
         try:
@@ -272,13 +316,15 @@ class Inbox:
             yield item
 
     def close(self) -> None:
-        for subscriber in self._subscribers:
+        for listener in self._miss_listeners:
+            listener.undeclare()
+        for subscriber in self._subscribers + self._advanced:
             subscriber.undeclare()
-        self._subscribers = []
+        self._subscribers, self._advanced, self._miss_listeners = [], [], []
 
 
 class StatusReporter:
-    """Publishes a ServiceStatus on railswitch/service/<name>/<instance>/status every interval_s,
+    """Publishes a ServiceStatus on railswitch/@service/<name>/<instance>/status every interval_s,
     with what the service's intake (services/core/intake.py) received, rejected and ignored (a newer publisher's)."""
 
     def __init__(self, publishers: Publishers, service: str, intake: Intake, interval_s: float = 5.0):

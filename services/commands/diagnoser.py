@@ -33,7 +33,7 @@ from railswitch.services.adapters.zenoh_bus import (
     open_session,
     query_all,
 )
-from railswitch.services.commands.options import add_model_argument, add_service_arguments, run_service
+from railswitch.services.commands.options import add_model_argument, add_service_arguments, bounded, run_service
 from railswitch.services.core.fleet_diagnoser import Diagnoser
 from railswitch.services.core.live_diagnoser import LiveDiagnoser
 from railswitch.services.core.membership import Membership
@@ -44,6 +44,8 @@ log = logging.getLogger("railswitch.diagnoser")
 STATE_QUERY_S = 5.0  # how long a starting diagnoser waits for the others' switch states
 STATE_KEY = "railswitch/*/state"
 INPUT_KEYS = ["railswitch/*/*"]
+CATCH_UP = ("record",)  # throws a diagnoser that was down asks the publishers' caches for (docs/contracts.md)
+KEPT_THROWS = 4  # each switch's latest diagnoses and health kept for historians that were down: 10 minutes at 500 a day
 
 
 class ElasticPeers:
@@ -69,19 +71,19 @@ class ElasticPeers:
 
 
 def run_diagnoser(options: BusOptions, *, model: str, shard: tuple[int, int] | None, stop: threading.Event,
-                  status_s: float = 5.0, state: str | None = None) -> int:
+                  status_s: float = 5.0, state: str | None = None, kept_throws: int = KEPT_THROWS) -> int:
     """Diagnose until stop is set (elastic without a shard); returns the number of diagnoses published."""
     session = open_session(dataclasses.replace(options, lease_ms=ELASTIC_LEASE_MS), stop=stop)
     try:
-        publishers = Publishers(session)
+        publishers = Publishers(session, cached={"diagnosis": kept_throws, "health": kept_throws})
         # One subscription keeps samples and events in order. A fixed shard queues what arrives while its model
         # warms up; an elastic diagnoser subscribes once ready, since the live ones serve everything until it joins.
-        inbox = Inbox(session, INPUT_KEYS) if shard is not None else None
+        inbox = Inbox(session, INPUT_KEYS, CATCH_UP) if shard is not None else None
         baselines = BaselineStore(model, state)
         diagnoser = Diagnoser(model, on_state=baselines.save, stored_state=baselines.load)
         started = time.monotonic()
         diagnoser.warm_up()
-        inbox = inbox or Inbox(session, INPUT_KEYS)  # before the state query: no state falls in between
+        inbox = inbox or Inbox(session, INPUT_KEYS, CATCH_UP)  # before the state query: no state falls in between
         ownership = Membership(instance_name()) if shard is None else FixedShard(shard, instance_name())
         live = LiveDiagnoser(diagnoser, publishers, ownership, known=baselines.known)
         peers = ElasticPeers(session, live, ownership) if isinstance(ownership, Membership) else None
@@ -98,8 +100,8 @@ def run_diagnoser(options: BusOptions, *, model: str, shard: tuple[int, int] | N
             if item is not None:
                 live.handle(item)
             live.expire()
-            status.maybe_publish(live.counters)
-        status.maybe_publish(live.counters, force=True)
+            status.maybe_publish(lambda: {**live.counters(), "missed_samples": inbox.missed})
+        status.maybe_publish({**live.counters(), "missed_samples": inbox.missed}, force=True)
         token.undeclare()
         log.info("published %d diagnoses; rejected %s", live.diagnosed, dict(live.intake.rejected) or "nothing")
         return live.diagnosed
@@ -123,8 +125,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--state", metavar="DIR", default=None,
                         help="where each switch's commissioned baseline is kept, so a restart resumes it "
                              "(default $RAILSWITCH_STATE, else ~/.local/state/railswitch/baselines)")
+    parser.add_argument("--keep-throws", type=bounded(int, 1, 10_000), default=KEPT_THROWS, metavar="N",
+                        help="each switch's latest N diagnoses and health messages kept for historians that were "
+                             f"down or start late (default {KEPT_THROWS})")
 
 
 def run(args: argparse.Namespace) -> int:
     return run_service(lambda options, stop: run_diagnoser(options, model=args.model, shard=args.shard, stop=stop,
-                                                           status_s=args.status_interval, state=args.state), args)
+                                                           status_s=args.status_interval, state=args.state,
+                                                           kept_throws=args.keep_throws), args)

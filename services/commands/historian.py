@@ -107,6 +107,10 @@ class QueryServer:
         self._thread.join()
 
 
+def counters(historian: Historian, server: QueryServer, inbox: Inbox) -> dict[str, int]:
+    return historian.counters() | server.answers.counters() | {"missed_samples": inbox.missed}
+
+
 def run_historian(options: BusOptions, db_path: str | Path, *, shard: tuple[int, int] | None, stop: threading.Event,
                   keep_days: float | None = None, status_s: float = 5.0) -> int:
     """Keep history until stop is set (elastic without a shard); returns the rows written. The store (a file, or
@@ -117,7 +121,8 @@ def run_historian(options: BusOptions, db_path: str | Path, *, shard: tuple[int,
         retention = Retention(keep_days)
         session = open_session(dataclasses.replace(options, lease_ms=ELASTIC_LEASE_MS), stop=stop)
         try:
-            inbox = Inbox(session, ["railswitch/*/diagnosis", "railswitch/*/health"])
+            # what the diagnosers kept of each switch's latest throws comes too, after an outage or a late start
+            inbox = Inbox(session, [], catch_up=("diagnosis", "health"))
             members = LiveSet(session, "historian", ownership) if isinstance(ownership, Membership) else None
             with QueryServer(session, HistoryAnswers(query_db, ownership.is_mine, instance_name())) as server:
                 token = declare_service(session, "historian")  # declared once queries are answered
@@ -133,8 +138,8 @@ def run_historian(options: BusOptions, db_path: str | Path, *, shard: tuple[int,
                     historian.write(batch)
                     if retention.due(time.monotonic()):
                         historian.prune(time.time_ns(), keep_days)
-                    status.maybe_publish(historian.counters() | server.answers.counters())
-                status.maybe_publish(historian.counters() | server.answers.counters(), force=True)
+                    status.maybe_publish(lambda: counters(historian, server, inbox))
+                status.maybe_publish(counters(historian, server, inbox), force=True)
                 token.undeclare()
         finally:
             session.close()

@@ -146,7 +146,7 @@ def add_service_arguments(parser: argparse.ArgumentParser, *, status: bool = Fal
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     if status:
         parser.add_argument("--status-interval", type=bounded(float, 0.1, 3600.0, "s"), default=5.0, metavar="S",
-                            help="seconds between status messages on railswitch/service/<name>/<instance>/status")
+                            help="seconds between status messages on railswitch/@service/<name>/<instance>/status")
 
 
 def bus_options(args: argparse.Namespace):

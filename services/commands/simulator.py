@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import threading
 import time
 
@@ -34,20 +35,23 @@ from railswitch.services.core.simulated_fleet import SwitchStream, recorded_thro
 
 log = logging.getLogger("railswitch.simulator")
 
+OUTAGE_S = 600.0  # how long every diagnoser may be down without a throw lost, by default (docs/contracts.md)
 LEAD_S = 1.0  # samples at rest before the first throw, so subscribers see the switch settled
 POLL_S = 0.2  # longest wait between looking at commands
 
 
 def run_simulator(options: BusOptions, scenario: Scenario, *, speed: float, stop: threading.Event,
-                  library: list[RecordedThrow] | None = None, status_s: float = 5.0, as_records: bool = False) -> int:
+                  library: list[RecordedThrow] | None = None, status_s: float = 5.0, as_records: bool = False,
+                  outage_s: float = OUTAGE_S) -> int:
     """Stream the scenario's switches until every plan is done or stop is set; returns messages published.
 
     With a library of recorded throws the switches replay those instead of running the plant. As records, each
-    throw goes out as one ThrowRecord at its end and nothing between throws: a fleet costs its throws only.
+    throw goes out as one ThrowRecord at its end and nothing between throws: a fleet costs its throws only; each
+    switch's records of the last `outage_s` (simulated) seconds are kept for diagnosers that were down or start late.
     """
     session = open_session(options, stop=stop)
     try:
-        publishers = Publishers(session)
+        publishers = Publishers(session, cached={"record": kept_records(outage_s, scenario.interval_s)})
         inbox = Inbox(session, ["railswitch/*/inject"])
         intake = Intake(log, kinds=("inject",))
         status = StatusReporter(publishers, "simulator", intake, status_s)
@@ -87,6 +91,11 @@ def run_simulator(options: BusOptions, scenario: Scenario, *, speed: float, stop
         session.close()
 
 
+def kept_records(outage_s: float, interval_s: float) -> int:
+    """Records per switch that cover an outage of outage_s: its throws in that time, and the one under way."""
+    return math.ceil(outage_s / interval_s) + 1
+
+
 def _apply_commands(inbox: Inbox, intake: Intake, streams: dict[str, SwitchStream]) -> None:
     while (item := inbox.get(0.0)) is not None:
         command = intake.message(item)
@@ -114,6 +123,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--as-records", action="store_true",
                         help="publish each throw as one record (railswitch/<id>/record) at its end, as trackside units "
                              "upload them, instead of samples and events; fault commands then act one throw later")
+    parser.add_argument("--outage", type=bounded(float, 0.0, 30 * 86_400.0, "s"), default=OUTAGE_S, metavar="S",
+                        help="with --as-records: keep each switch's records of the last S simulated seconds for "
+                             f"diagnosers that were down or start late (default {OUTAGE_S:g})")
     parser.add_argument("--throws-from", metavar="F.mcap", default=None,
                         help="stream the recorded throws of F (both directions) instead of running the plant: "
                              "hundreds of switches on one core")
@@ -131,5 +143,5 @@ def run(args: argparse.Namespace) -> int:
             return fail(f"{args.throws_from}: {error}")
     return run_service(lambda options, stop: run_simulator(options, scenario_from_args(args), speed=args.speed,
                                                            stop=stop, library=library, status_s=args.status_interval,
-                                                           as_records=args.as_records),
+                                                           as_records=args.as_records, outage_s=args.outage),
                        args)

@@ -66,6 +66,8 @@ class Diagnoser:
     on_state: Callable[[str, dict], None] | None = None  # (switch id, state) after every throw and commissioning
     stored_state: Callable[[str], dict | None] | None = None  # a switch's state kept from an earlier run
     switches: dict[str, SwitchDiagnoser] = field(default_factory=dict)
+    # per switch: (throw index, end ns) of the latest throw its state has seen, kept in the state as `last_throw`
+    last_throws: dict[str, tuple[int, int]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.model not in RAIL_MODELS:
@@ -109,8 +111,15 @@ class Diagnoser:
             stored = self.stored_state(switch_id) if self.stored_state is not None else None
             if stored is not None:
                 switch.resume(stored)
+                if "last_throw" in stored:  # a state saved before it was kept has none
+                    self.last_throws[switch_id] = (int(stored["last_throw"][0]), int(stored["last_throw"][1]))
             self.switches[switch_id] = switch
         return self.switches[switch_id]
+
+    def forget(self, switch_id: str) -> None:
+        """Drop a switch held here; its next throw resumes it from its latest stored state."""
+        self.switches.pop(switch_id, None)
+        self.last_throws.pop(switch_id, None)
 
     def commission(self, switch_id: str, accept: bool = False) -> dict[str, dict[str, float]]:
         """Restart a switch's commissioning (after maintenance), or with `accept` take the switch as it now is as its
@@ -120,8 +129,12 @@ class Diagnoser:
         if not accept:
             switch.restart_commissioning()
         if self.on_state is not None:
-            self.on_state(switch_id, switch.state())
+            self.on_state(switch_id, self._state(switch_id, switch))
         return accepted
+
+    def _state(self, switch_id: str, switch: SwitchDiagnoser) -> dict:
+        last = self.last_throws.get(switch_id)
+        return switch.state() if last is None else {**switch.state(), "last_throw": list(last)}
 
     def diagnose(self, throw: CutThrow) -> DiagnosedThrow:
         """The Diagnosis of one throw; latency_ms is this call's wall time."""
@@ -130,9 +143,10 @@ class Diagnoser:
         outcome = switch.diagnose(throw_input(throw))
         if outcome.standing is not None:
             log.warning("%s %s", throw.switch_id, outcome.standing)
+        end_ns = throw_end_ns(throw)
+        self.last_throws[throw.switch_id] = (throw.start.throw_index, end_ns)
         if self.on_state is not None:
-            self.on_state(throw.switch_id, switch.state())
-        end_ns = throw.end.t_ns if throw.end is not None else throw.start.t_ns + int(round(_last_time(throw) * 1e9))
+            self.on_state(throw.switch_id, self._state(throw.switch_id, switch))
         diagnosis = diagnosis_message(self.model, throw, switch, outcome, (time.perf_counter() - start) * 1e3, end_ns)
         health = None if outcome.health is None else health_message(self.model, throw, outcome.health, end_ns)
         return DiagnosedThrow(throw, diagnosis, outcome.verdict, health)
@@ -183,6 +197,11 @@ def diagnosis_message(model: str, throw: CutThrow, switch: SwitchDiagnoser, outc
                      estimate=estimates.get(outcome.decision), commissioning=commissioning, latency_ms=latency_ms,
                      signals=list(throw.signals.names) if verdict is not None else [],
                      faults=list(outcome.faults), estimates=list(estimates.values()), without=without)
+
+
+def throw_end_ns(throw: CutThrow) -> int:
+    """When a throw ended: its end event, else its last sample."""
+    return throw.end.t_ns if throw.end is not None else throw.start.t_ns + int(round(_last_time(throw) * 1e9))
 
 
 def _last_time(throw: CutThrow) -> float:

@@ -24,7 +24,7 @@ from railswitch.schemas import (
     key_expr,
 )
 from railswitch.services.adapters.zenoh_bus import Publishers, Received
-from railswitch.services.core.fleet_diagnoser import DiagnosedThrow, Diagnoser
+from railswitch.services.core.fleet_diagnoser import DiagnosedThrow, Diagnoser, throw_end_ns
 from railswitch.services.core.handover import HeldThrow, HeldThrows, StateCache, diagnosis_key
 from railswitch.services.core.intake import Intake
 from railswitch.services.core.records import throw_of_record
@@ -35,7 +35,9 @@ log = logging.getLogger("railswitch.diagnoser")
 
 INPUT_KINDS = ("motor", "throw", "record", "commission", "diagnosis", "state")
 EXPIRE_EVERY_S = 1.0
-COUNTERS = ("diagnosed", "taken_over", "held_expired", "failed", "commissions")  # in every status, zeros too
+# in every status, zeros too; `already_diagnosed`: throws a switch's state had seen (a cache's replay after a restart),
+# `missed`: throws lost for good (older than the publishers' caches when this diagnoser came back), by index gaps
+COUNTERS = ("diagnosed", "taken_over", "held_expired", "failed", "commissions", "already_diagnosed", "missed")
 
 
 class LiveDiagnoser:
@@ -112,7 +114,7 @@ class LiveDiagnoser:
         """After the live set changed: forget the switches no longer this one's (when one comes back it resumes
         from the latest state on the bus) and take over the held throws whose owner left."""
         for switch_id in [s for s in self.diagnoser.switches if not self.ownership.is_mine(s)]:
-            del self.diagnoser.switches[switch_id]
+            self.diagnoser.forget(switch_id)
         for held in self.held.orphaned(self.ownership.members):
             owner = self.ownership.owner(held.throw.switch_id, held.started_s)
             if owner == self.ownership.me:
@@ -124,6 +126,8 @@ class LiveDiagnoser:
                 self.held.hold(HeldThrow(held.throw, owner, held.started_s, held.arrived_s))
 
     def _diagnose(self, throw: CutThrow, arrived_s: float) -> None:
+        if not self._new(throw):
+            return
         diagnosed = self._diagnosed(throw)
         latency_ms = (self.clock() - arrived_s) * 1e3  # from the throw's end arriving to publication
         diagnosis = diagnosed.diagnosis.model_copy(update={"latency_ms": latency_ms})
@@ -135,6 +139,28 @@ class LiveDiagnoser:
         self.counts["diagnosed"] += 1
         log.info("%s throw %d %s: %s (%.0f ms)%s", throw.switch_id, diagnosis.throw_index, diagnosis.direction,
                  diagnosis.decision, latency_ms, f" - {diagnosis.reason}" if diagnosis.reason else "")
+
+    def _new(self, throw: CutThrow) -> bool:
+        """Whether the switch's state has not seen this throw yet (a publisher's cache replays the throws it kept to a
+        diagnoser that comes back, those diagnosed before it went down among them). Throws skipped between the
+        state's latest and this one are counted and logged as missed, with their indices."""
+        switch_id, index = throw.switch_id, throw.start.throw_index
+        try:
+            self.diagnoser.switch(switch_id)  # resumed from the latest state on the bus or on disk
+        except Exception:  # noqa: BLE001 - a state that cannot be resumed: _diagnosed says why and starts afresh
+            return True
+        last = self.diagnoser.last_throws.get(switch_id)
+        if last is None:
+            return True
+        if throw_end_ns(throw) <= last[1]:
+            self.counts["already_diagnosed"] += 1
+            return False
+        if index > last[0] + 1:
+            self.counts["missed"] += index - last[0] - 1
+            log.warning("%s throws %s missed: they ended while no diagnoser was listening, longer ago than the "
+                        "publisher keeps throws", switch_id,
+                        last[0] + 1 if index == last[0] + 2 else f"{last[0] + 1} to {index - 1}")
+        return True
 
     def _diagnosed(self, throw: CutThrow) -> DiagnosedThrow:
         """The diagnosis, or an unknown one saying why it failed: one throw must not stop a fleet's diagnoser. A
@@ -157,9 +183,7 @@ class LiveDiagnoser:
             self.publishers.put(key, message)
 
     def _on_state(self, switch_id: str, state: dict) -> None:
-        if self._save is not None:
-            self._save(switch_id, state)
-        self._unpublished[switch_id] = state
+        self._unpublished[switch_id] = state  # saved once the throw's diagnosis is out (_publish_state)
 
     def _stored_state(self, switch_id: str) -> dict | None:
         cached = self.states.get(switch_id)
@@ -168,10 +192,14 @@ class LiveDiagnoser:
         return self._load(switch_id) if self._load is not None else None
 
     def _publish_state(self, switch_id: str, index: int, t_ns: int) -> None:
-        """The state the diagnoser handed over, after throw `index` that ended at t_ns."""
+        """The state the diagnoser handed over, after throw `index` that ended at t_ns, saved and on the bus. Saved only
+        now: a diagnoser killed between saving a state and publishing its throw's diagnosis would, restarted, take
+        the throw for diagnosed (its state has seen it) and it would never be published."""
         state = self._unpublished.pop(switch_id, None)
         if state is None:
             return
+        if self._save is not None:
+            self._save(switch_id, state)
         message = SwitchState(switch_id=switch_id, model=self.diagnoser.model, throw_index=index, t_ns=t_ns,
                               state=state)
         self.states.put(message)
@@ -188,7 +216,7 @@ class LiveDiagnoser:
             return
         self._seen.add(state.switch_id)
         if state.switch_id in self.diagnoser.switches and (latest is None or state.t_ns > latest[1]):
-            del self.diagnoser.switches[state.switch_id]
+            self.diagnoser.forget(state.switch_id)
 
     def _commission(self, command: CommissionCommand, key: str) -> None:
         switch_id = command.switch_id

@@ -67,7 +67,7 @@ def test_junk_on_every_key_is_counted_and_the_valid_stream_still_diagnosed(tmp_p
     recording = tmp_path / "junk.mcap"
     statuses: dict[str, ServiceStatus] = {}
     with live_bus(tmp_path) as (services, endpoint, session, collector):
-        session.declare_subscriber("railswitch/service/*/*/status", lambda s: statuses.__setitem__(
+        session.declare_subscriber("railswitch/@service/*/*/status", lambda s: statuses.__setitem__(
             str(s.key_expr).split("/")[2], decode(ServiceStatus, s.payload.to_bytes())))
         diagnoser = services.start("diagnoser", "--connect", endpoint, "--status-interval", "0.5")
         recorder = services.start("recorder", "--connect", endpoint, "--out", str(recording), "--status-interval",

@@ -74,7 +74,7 @@ class StatusWatcher:
 
     def __init__(self, session: zenoh.Session):
         self.latest: dict[str, ServiceStatus] = {}
-        self._subscriber = session.declare_subscriber("railswitch/service/*/*/status", self._on_sample)
+        self._subscriber = session.declare_subscriber("railswitch/@service/*/*/status", self._on_sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         status = decode(ServiceStatus, sample.payload.to_bytes())

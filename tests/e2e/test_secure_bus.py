@@ -5,8 +5,11 @@ from __future__ import annotations
 
 import datetime
 import ipaddress
+import json
 import secrets
 import socket
+import subprocess
+import sys
 import threading
 import time
 from collections import Counter
@@ -29,13 +32,19 @@ TEMPLATES = ROOT / "deploy" / "secure"
 SECRETS_DIR = "/etc/railswitch/secure"  # where the templates expect certificates and credentials
 PLACEHOLDER = "REPLACE-WITH-A-RANDOM-PASSWORD"
 USERS = [line.split(":")[0] for line in (TEMPLATES / "credentials.txt.example").read_text().split()]
-SWITCH_TOPICS = ("motor", "throw", "truth", "diagnosis", "inject")
-MAY_PUBLISH = {  # issue 6, item 4: the policy the router must enforce
-    "simulator": {"motor", "throw", "truth", "inject"},
-    "diagnoser": {"diagnosis"},
+SWITCH_TOPICS = ("motor", "throw", "truth", "record", "diagnosis", "health", "state", "inject", "commission")
+MAY_PUBLISH = {  # the policy the router must enforce (deploy/secure/README.md)
+    "simulator": {"motor", "throw", "truth", "record", "inject"},
+    "diagnoser": {"diagnosis", "health", "state"},
+    "historian": set(),
     "recorder": set(),
-    "operator": {"inject"},
+    "operator": {"inject", "commission"},
 }
+SERVICES = ("simulator", "replay", "diagnoser", "historian", "recorder")
+MAY_ANNOUNCE = {"simulator": {"simulator", "replay"}, "diagnoser": {"diagnoser"}, "historian": {"historian"},
+                "recorder": {"recorder"}, "operator": set()}
+# What a subscriber to switch data listens on: every switch's channel of one kind, and everything
+SWITCH_PATTERNS = tuple(f"railswitch/*/{topic}" for topic in SWITCH_TOPICS) + ("railswitch/**",)
 
 
 # -- certificates, as the openssl recipe of deploy/secure/README.md makes them ---------------------
@@ -178,35 +187,39 @@ REPEATS = 20  # not 1: a publisher that never learns of the subscriber still get
 
 
 @pytest.fixture(scope="module")
-def delivered(bus) -> Counter[tuple[str, str]]:
-    """How many messages per (user, topic) a recorder-user subscriber received when every user published
-    REPEATS times on every topic of switch sw1 and on its status key. Forbidden topics go first, so that
-    by the time a user's allowed messages have arrived its forbidden ones would have too."""
-    received: Counter[tuple[str, str]] = Counter()
+def delivered(bus) -> Counter[tuple[str, str, str]]:
+    """How many messages per (pattern, user, key) the subscribers of a recorder-user session received when every
+    user published REPEATS times on every topic of switch sw1, on every announcement key of every service, and on
+    every key the announcements once lived under (railswitch/service/<topic>: the switch `service` now). One
+    subscriber per switch pattern, and one on railswitch/@service/**. Forbidden keys go first, so that by the time a
+    user's allowed messages have arrived its forbidden ones would have too."""
+    received: Counter[tuple[str, str, str]] = Counter()
     lock = threading.Lock()
 
-    def on_sample(sample: zenoh.Sample) -> None:
+    def on_sample(pattern: str, sample: zenoh.Sample) -> None:
         with lock:
-            received[tuple(sample.payload.to_bytes().decode().split(" "))] += 1
+            received[(pattern, sample.payload.to_bytes().decode(), str(sample.key_expr))] += 1
+
+    keys = {user: [f"railswitch/{switch}/{topic}" for switch in ("sw1", "service") for topic in SWITCH_TOPICS]
+            + [f"railswitch/@service/{service}/test-1/status" for service in SERVICES] for user in USERS}
+    allowed = {(user, key) for user, user_keys in keys.items() for key in user_keys if _may_put(user, key)}
 
     def complete() -> bool:
         with lock:
-            return all(received[(user, topic)] >= REPEATS for user, topic in allowed)
+            arrived = {(user, key) for _, user, key in received}
+            return allowed <= arrived and all(n >= REPEATS for n in received.values())
 
-    allowed = {(user, topic) for user, topics in MAY_PUBLISH.items() for topic in topics}
-    allowed |= {(user, "status") for user in USERS}
     with bus.session("recorder") as reader:
-        reader.declare_subscriber("railswitch/**", on_sample)
+        for pattern in SWITCH_PATTERNS + ("railswitch/@service/**",):
+            reader.declare_subscriber(pattern, lambda sample, pattern=pattern: on_sample(pattern, sample))
         sessions = {user: bus.session(user) for user in USERS}
         try:
             for user, session in sessions.items():
                 publishers = Publishers(session)
-                for topic in sorted(SWITCH_TOPICS, key=lambda t: t in MAY_PUBLISH[user]):
+                for key in sorted(keys[user], key=lambda k: _may_put(user, k)):
                     for _ in range(REPEATS):
-                        publishers.put(f"railswitch/sw1/{topic}", f"{user} {topic}".encode())
-                for _ in range(REPEATS):
-                    publishers.put(f"railswitch/service/{user}/test-1/status", f"{user} status".encode())
-            wait_for(complete, 10, f"{REPEATS} of each allowed publication")
+                        publishers.put(key, user.encode())
+            wait_for(complete, 15, f"{REPEATS} of each allowed publication")
             time.sleep(0.5)
         finally:
             for session in sessions.values():
@@ -215,40 +228,63 @@ def delivered(bus) -> Counter[tuple[str, str]]:
         return Counter(received)
 
 
-def _publishers_of(delivered: Counter[tuple[str, str]], topic: str) -> set[str]:
-    return {user for user, t in delivered if t == topic}
+def _may_put(user: str, key: str) -> bool:
+    chunks = key.split("/")
+    if chunks[1] == "@service":
+        return chunks[2] in MAY_ANNOUNCE[user]
+    return chunks[2] in MAY_PUBLISH[user]
 
 
-def test_only_the_diagnoser_user_gets_a_diagnosis_through(delivered):
-    assert _publishers_of(delivered, "diagnosis") == {"diagnoser"}
+def _publishers_of(delivered: Counter[tuple[str, str, str]], topic: str) -> set[str]:
+    return {user for _, user, key in delivered if key == f"railswitch/sw1/{topic}"}
 
 
-@pytest.mark.parametrize("topic", ["motor", "throw", "truth"])
-def test_only_the_simulator_user_gets_plant_messages_through(delivered, topic):
-    assert _publishers_of(delivered, topic) == {"simulator"}
+@pytest.mark.parametrize("topic", SWITCH_TOPICS)
+def test_only_the_users_allowed_a_topic_get_it_through(delivered, topic):
+    assert _publishers_of(delivered, topic) == {user for user, topics in MAY_PUBLISH.items() if topic in topics}
 
 
-def test_only_the_operator_and_simulator_users_inject_faults(delivered):
-    assert _publishers_of(delivered, "inject") == {"operator", "simulator"}
+def test_a_switch_named_service_is_a_switch_like_any_other(delivered):
+    """railswitch/service/<topic> once held service announcements, which every user could put: now it is switch
+    `service`, which only the users allowed a topic may publish."""
+    got = {(user, key.split("/")[2]) for _, user, key in delivered if key.split("/")[1] == "service"}
+    assert got == {(user, topic) for user, topics in MAY_PUBLISH.items() for topic in topics}
 
 
-def test_every_user_publishes_its_status(delivered):
-    assert _publishers_of(delivered, "status") == set(USERS)
+def test_each_user_announces_only_its_own_services(delivered):
+    got = {(user, key.split("/")[2]) for _, user, key in delivered if key.split("/")[1] == "@service"}
+    assert got == {(user, service) for user, services in MAY_ANNOUNCE.items() for service in services}
+
+
+@pytest.mark.parametrize("pattern", SWITCH_PATTERNS)
+def test_no_announcement_reaches_a_switch_subscriber(delivered, pattern):
+    """Whatever any user puts under railswitch/@service/ (allowed or not), a subscriber of switch data never sees
+    it; and on each pattern, only what the publishing user may put arrives."""
+    got = [(user, key) for p, user, key in delivered if p == pattern]
+    assert got and not [key for _, key in got if key.split("/")[1] == "@service"]
+    assert all(_may_put(user, key) for user, key in got)
 
 
 def test_every_allowed_message_arrives_not_only_the_first(delivered):
     assert set(delivered.values()) == {REPEATS}
 
 
-def test_every_user_declares_a_liveliness_token_that_a_reader_sees(bus):
+def test_each_user_declares_liveliness_tokens_only_for_its_own_services(bus):
     sessions = {user: bus.session(user) for user in USERS}
     try:
-        tokens = [s.liveliness().declare_token(f"railswitch/service/{u}/test-2") for u, s in sessions.items()]
+        tokens = [s.liveliness().declare_token(f"railswitch/@service/{service}/test-2-{user}")
+                  for user, s in sessions.items() for service in SERVICES]
+        tokens += [s.liveliness().declare_token(f"railswitch/{switch}/test-2-{user}")
+                   for user, s in sessions.items() for switch in ("sw1", "service")]
+        expected = {(service, f"test-2-{user}") for user, services in MAY_ANNOUNCE.items() for service in services}
         with bus.session("recorder") as reader:
-            def alive() -> set[str]:
-                replies = reader.liveliness().get("railswitch/service/*/test-2")
-                return {str(r.ok.key_expr).split("/")[2] for r in replies if r.ok is not None}
-            wait_for(lambda: alive() == set(USERS), 10, "every user's liveliness token")
+            def alive(pattern: str) -> set[tuple[str, str]]:
+                replies = reader.liveliness().get(pattern)
+                return {tuple(str(r.ok.key_expr).split("/")[-2:]) for r in replies if r.ok is not None}
+            wait_for(lambda: alive("railswitch/@service/*/*") == expected, 10, "each user's own liveliness tokens")
+            time.sleep(0.5)
+            assert alive("railswitch/@service/*/*") == expected
+            assert alive("railswitch/**") == set()  # no token outside the announcements, and none of them
         for token in tokens:
             token.undeclare()
     finally:
@@ -257,13 +293,27 @@ def test_every_user_declares_a_liveliness_token_that_a_reader_sees(bus):
 
 
 # -- the services themselves -----------------------------------------------------------------------
-def test_simulator_and_diagnoser_processes_deliver_a_diagnosis_through_the_secured_router(bus, tmp_path):
+def test_simulator_diagnoser_and_historian_processes_work_through_the_secured_router(bus, tmp_path):
+    """Each service as its own user: the diagnosis reaches a reader, and the historian answers a reader's history
+    query (`railswitch history` as the recorder user)."""
     with ServiceProcesses(tmp_path) as services, bus.session("recorder") as reader:
         collector = DiagnosisCollector(reader)
         services.start("diagnoser", "--zenoh-config", bus.config_file("diagnoser"), "--connect", bus.endpoint)
-        wait_ready(reader, services, timeout_s=60, diagnoser=1)  # up to ~15 s of compiling on a cold cache
+        services.start("historian", "--zenoh-config", bus.config_file("historian"), "--connect", bus.endpoint,
+                       "--db", str(tmp_path / "history.sqlite"))
+        wait_ready(reader, services, timeout_s=60, diagnoser=1, historian=1)  # up to ~15 s compiling on a cold cache
         simulator = services.start("simulator", "--zenoh-config", bus.config_file("simulator"), "--connect",
                                    bus.endpoint, "--switch-id", "sw2", "--throws", "1", "--speed", "20")
         assert simulator.wait(60) == 0, services.log(simulator)
         wait_for(lambda: collector.received, 30, "a diagnosis of sw2")
+
+        def history() -> list[dict]:
+            answer = subprocess.run([sys.executable, "-m", "railswitch", "history", "sw2", "--kind", "diagnosis",
+                                     "--json", "--zenoh-config", bus.config_file("recorder"), "--connect",
+                                     bus.endpoint, "--timeout", "5"], capture_output=True, text=True, timeout=60)
+            assert answer.returncode == 0, answer.stderr
+            return [json.loads(line) for line in answer.stdout.splitlines()]
+        stored: list[dict] = []
+        wait_for(lambda: stored.extend(history()) or stored, 30, "the historian's answer")
     assert [(d.switch_id, d.throw_index, d.decision) for d in collector.received] == [("sw2", 0, "nominal")]
+    assert [(d["switch_id"], d["throw_index"], d["decision"]) for d in stored] == [("sw2", 0, "nominal")]

@@ -219,7 +219,7 @@ def junk(kind: str) -> list[bytes]:
 def test_junk_diagnosis_and_health_payloads_are_counted_once_per_reason_and_never_stored(historian_bus):
     session, _, db, _ = historian_bus
     statuses: list[ServiceStatus] = []
-    subscriber = session.declare_subscriber("railswitch/service/historian/*/status",
+    subscriber = session.declare_subscriber("railswitch/@service/historian/*/status",
                                             lambda s: statuses.append(decode(ServiceStatus, s.payload.to_bytes())))
     try:
         for kind in ("diagnosis", "health"):
@@ -279,7 +279,7 @@ def test_the_history_command_prints_a_switchs_history_from_the_bus_and_from_the_
 def test_the_historians_status_counts_what_it_wrote_and_answered(historian_bus):
     session = historian_bus[0]
     statuses: list[ServiceStatus] = []
-    subscriber = session.declare_subscriber("railswitch/service/historian/*/status",
+    subscriber = session.declare_subscriber("railswitch/@service/historian/*/status",
                                             lambda s: statuses.append(decode(ServiceStatus, s.payload.to_bytes())))
     try:
         wait_for(lambda: bool(statuses), 10, "a status message")

@@ -14,7 +14,7 @@ from railswitch.services.commands.cli import build_parser
 
 ROOT = Path(__file__).resolve().parents[2]
 TEMPLATES = ROOT / "deploy" / "secure"
-SERVICES = ["simulator", "diagnoser", "recorder"]
+SERVICES = ["simulator", "diagnoser", "recorder", "historian"]
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +46,7 @@ def files_named_by(config: zenoh.Config) -> set[str]:
     return {path for path in named if path}
 
 
-def test_compose_runs_router_simulator_diagnoser_and_recorder(compose):
+def test_compose_runs_router_simulator_diagnoser_recorder_and_historian(compose):
     assert set(compose["services"]) == {"router", *SERVICES}
 
 

@@ -34,7 +34,7 @@ def test_intake_turns_any_payload_into_a_message_or_a_counted_rejection(key, pay
     message = intake.message(Received(key, payload, 0.0))  # never raises
     if message is not None:
         assert type(message) is CHANNEL_MODELS[key.split("/")[2]] and message.switch_id == key.split("/")[1]
-    elif not key.startswith("railswitch/service/"):
+    elif not key.startswith("railswitch/@service/"):
         assert sum(intake.rejected.values()) == 1  # every refusal is counted
 
 
