@@ -11,7 +11,7 @@ COPY pyproject.toml README.md __init__.py __main__.py ./
 COPY models models
 COPY schemas schemas
 COPY services services
-RUN pip install --no-cache-dir .
+RUN pip install --no-cache-dir ".[postgres]"
 
 # Compiled diagnosis models are cached here; a volume keeps them across restarts.
 ENV RAILSWITCH_CACHE=/cache

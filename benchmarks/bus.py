@@ -63,7 +63,7 @@ import zenoh
 from benchmarks.common import emit, parser
 from railswitch.schemas import Diagnosis, MotorSample, ServiceStatus, ThrowEvent, ThrowRecord, decode
 from railswitch.services.adapters.zenoh_bus import BusOptions, open_session
-from railswitch.services.adapters.history_db import HistoryDb
+from railswitch.services.adapters.history_store import open_history
 from railswitch.services.adapters.recordings import RecordingWriter, load_recording
 from railswitch.services.adapters.processes import (
     ServiceProcesses,
@@ -522,8 +522,9 @@ def outage_benchmark(args) -> dict:
 
 
 def history_counts(db: str) -> tuple[int, int]:
-    """(diagnoses stored, throws with more than one stored diagnosis) in the historian's database."""
-    with HistoryDb(db, create=False) as history:
+    """(diagnoses stored, throws with more than one stored diagnosis) in the historian's database (a file or a
+    postgresql:// URL)."""
+    with open_history(db, create=False) as history:
         rows = [(switch_id, index) for switch_id in history.switches()
                 for index in history.throw_indices(switch_id, "diagnosis")]
     return len(rows), len(rows) - len(set(rows))

@@ -36,6 +36,24 @@ def own_state_directory(tmp_path_factory, monkeypatch):
 
 
 @pytest.fixture(scope="session")
+def postgres():
+    """A private PostgreSQL server for the session (tests/postgres.py); the tests skip, in one line, without one."""
+    from tests.postgres import PostgresServer, binaries
+
+    found = binaries()
+    if found is None:
+        pytest.skip("no PostgreSQL binaries (initdb, pg_ctl) on PATH or in /usr/lib/postgresql/*/bin")
+    with PostgresServer(found) as server:
+        yield server
+
+
+@pytest.fixture
+def pg_url(postgres) -> str:
+    """The URL of a fresh, empty database of its own on the session's server."""
+    return postgres.new_database()
+
+
+@pytest.fixture(scope="session")
 def plant() -> Plant:
     """One plant per test session: building its CasADi functions takes a moment."""
     return Plant()

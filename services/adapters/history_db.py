@@ -1,4 +1,4 @@
-"""The historian's SQLite file (stdlib sqlite3): diagnoses and health messages by switch and time.
+"""The historian's SQLite file (stdlib sqlite3, the embedded store): diagnoses and health messages by switch and time.
 
 One table `history` holds each message as its JSON beside the switch, kind, throw and time it is looked up
 by; a unique index on (switch_id, t_ns, kind, throw_index) serves queries by switch and time, and makes a
@@ -17,40 +17,32 @@ import sqlite3
 from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-from typing import NamedTuple
 
 from railswitch.schemas import CHANNEL_MODELS, HISTORY_KINDS, MessageError, decode
-from railswitch.schemas.history import MAX_TIME_NS
+from railswitch.services.adapters.history_store import (
+    COLUMNS,
+    KIND_CHECK,
+    PRUNE_SQL,
+    HistoryDbError,
+    HistoryRow,
+    HistoryStore,
+)
 
+__all__ = ["DamagedHistory", "HistoryDb", "HistoryDbError", "HistoryRow", "readable_rows", "salvage"]
 SCHEMA_VERSION = 1
 SCHEMA = f"""
 CREATE TABLE schema_version (version INTEGER NOT NULL);
 INSERT INTO schema_version VALUES ({SCHEMA_VERSION});
 CREATE TABLE history (
     switch_id TEXT NOT NULL,
-    kind TEXT NOT NULL CHECK (kind IN ({", ".join(f"'{k}'" for k in HISTORY_KINDS)})),
+    kind TEXT NOT NULL {KIND_CHECK},
     throw_index INTEGER NOT NULL,
     t_ns INTEGER NOT NULL,
     payload TEXT NOT NULL
 );
 CREATE UNIQUE INDEX history_by_switch_time ON history (switch_id, t_ns, kind, throw_index);
 """
-COLUMNS = "switch_id, kind, throw_index, t_ns, payload"
 SALVAGE_BATCH = 1000  # rows per transaction of a salvage
-
-
-class HistoryRow(NamedTuple):
-    """One stored message: its switch, kind (diagnosis or health), throw, time (ns) and JSON."""
-
-    switch_id: str
-    kind: str
-    throw_index: int
-    t_ns: int
-    payload: str
-
-
-class HistoryDbError(OSError):
-    """A history file cannot be used; the message is one line."""
 
 
 class DamagedHistory(HistoryDbError):
@@ -62,12 +54,15 @@ class DamagedHistory(HistoryDbError):
                          f"`railswitch history --db {path} --salvage NEW.sqlite` copies them into a fresh file")
 
 
-class HistoryDb:
+class HistoryDb(HistoryStore):
     """One connection to a history file. The first (check=True) creates or checks the file; further ones
     (check=False, one per thread) join a file already checked."""
 
+    table = "history"
+
     def __init__(self, path: str | os.PathLike[str], *, check: bool = True, create: bool = True):
         self.path = Path(path)
+        self.name = str(self.path)
         if check:
             _check_location(self.path, create)
         try:
@@ -133,36 +128,11 @@ class HistoryDb:
                 self._db.execute("ROLLBACK")
             raise
 
-    def latest(self, switch_id: str, kind: str, since_ns: int | None, until_ns: int | None,
-               limit: int) -> tuple[list[str], bool]:
-        """The payloads of the latest `limit` rows of one switch and kind with since_ns <= t_ns < until_ns,
-        oldest first, and whether older rows in the window were left out."""
-        rows = self._read(
-            "SELECT payload FROM history WHERE switch_id = ? AND kind = ? AND t_ns >= ? AND t_ns < ? "
-            "ORDER BY t_ns DESC LIMIT ?",
-            (switch_id, kind, since_ns or 0, MAX_TIME_NS if until_ns is None else until_ns, limit + 1))
-        return [payload for (payload,) in reversed(rows[:limit])], len(rows) > limit
-
-    def throw_indices(self, switch_id: str, kind: str) -> list[int]:
-        """The throw index of every row of one switch and kind (a throw stored twice, twice)."""
-        return [index for (index,) in self._read("SELECT throw_index FROM history WHERE switch_id = ? AND kind = ?",
-                                                  (switch_id, kind))]
-
-    def holds(self, switch_id: str) -> bool:
-        return bool(self._read("SELECT 1 FROM history WHERE switch_id = ? LIMIT 1", (switch_id,)))
-
-    def switches(self) -> list[str]:
-        """Every switch with a row, from the index alone."""
-        return [switch_id for (switch_id,) in self._read("SELECT DISTINCT switch_id FROM history")]
-
     def _read(self, sql: str, parameters: tuple = ()) -> list[tuple]:
         try:
             return self._db.execute(sql, parameters).fetchall()
         except sqlite3.Error as error:
             raise HistoryDbError(f"cannot read history database {self.path}: {error}") from None
-
-    def count(self) -> int:
-        return self._read("SELECT count(*) FROM history")[0][0]
 
     def prune(self, before_ns: int) -> int:
         """Delete every row older than before_ns (switch by switch, along the index) and give the freed pages
@@ -171,8 +141,7 @@ class HistoryDb:
         try:
             for switch_id in self.switches():
                 with self._transaction():
-                    deleted += self._db.execute("DELETE FROM history WHERE switch_id = ? AND t_ns < ?",
-                                                (switch_id, before_ns)).rowcount
+                    deleted += self._db.execute(PRUNE_SQL.format(table=self.table), (switch_id, before_ns)).rowcount
             if deleted:
                 self._db.execute("PRAGMA incremental_vacuum")
         except sqlite3.Error as error:
@@ -181,12 +150,6 @@ class HistoryDb:
 
     def close(self) -> None:
         self._db.close()
-
-    def __enter__(self) -> HistoryDb:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 def _first_problem(problems: list[str]) -> str:

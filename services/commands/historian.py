@@ -1,12 +1,14 @@
-"""`railswitch historian --db F.sqlite`: every diagnosis and health message of its switches into an SQLite
-file, and the history of a switch to any Zenoh client that asks (a get on railswitch/<id>/history).
+"""`railswitch historian --db F.sqlite|URL`: every diagnosis and health message of its switches into an SQLite
+file or a PostgreSQL database, and the history of a switch to any Zenoh client that asks (a get on
+railswitch/<id>/history).
 
 Zenoh callbacks only queue; the main thread writes whatever is queued as one transaction, and a second
-thread answers queries from its own connection to the file. Several historians split a fleet as diagnosers
+thread answers queries from its own connection to the store. Several historians split a fleet as diagnosers
 do: by default elastic (each finds the others by their liveliness tokens and keeps the switches that rendezvous
 hashing over the live set gives it, holding the others' rows for a while in case their owner dies), or `--shard
-K/N` for good. One get with consolidation off gathers every historian's answer. A damaged file stops the
-historian before it joins the bus, saying how many rows can be salvaged.
+K/N` for good; historians sharing one PostgreSQL database write it at once, a row two of them write kept once. One
+get with consolidation off gathers every historian's answer. A damaged file, or a database that cannot be reached,
+stops the historian before it joins the bus, in one line.
 """
 from __future__ import annotations
 
@@ -22,7 +24,7 @@ from pathlib import Path
 import zenoh
 
 from railswitch.schemas import HISTORY_KEYS, history_key
-from railswitch.services.adapters.history_db import HistoryDb
+from railswitch.services.adapters.history_store import open_history
 from railswitch.services.adapters.zenoh_bus import (
     ELASTIC_LEASE_MS,
     BusOptions,
@@ -57,7 +59,7 @@ def batches(inbox: Inbox, stop: threading.Event) -> Iterator[list[Received]]:
 
 
 class QueryServer:
-    """Answers history queries in a thread of its own with its own connection to the file; the queryable's
+    """Answers history queries in a thread of its own with its own connection to the store; the queryable's
     callback only queues the query."""
 
     def __init__(self, session: zenoh.Session, answers: HistoryAnswers):
@@ -86,7 +88,7 @@ class QueryServer:
         try:
             answer = self.answers.answer(key, dict(query.parameters),
                                          lambda switch_id: asked.intersects(zenoh.KeyExpr(history_key(switch_id))))
-        except OSError as error:  # the file could not be read: say so to the client, keep serving
+        except OSError as error:  # the store could not be read: say so to the client, keep serving
             log.error("%s", error)
             query.reply_err(str(error).encode(), encoding=zenoh.Encoding.TEXT_PLAIN)
             return
@@ -111,9 +113,9 @@ def counters(historian: Historian, server: QueryServer, inbox: Inbox) -> dict[st
 
 def run_historian(options: BusOptions, db_path: str | Path, *, shard: tuple[int, int] | None, stop: threading.Event,
                   keep_days: float | None = None, status_s: float = 5.0) -> int:
-    """Keep history until stop is set (elastic without a shard); returns the rows written. The file is checked
-    before joining the bus."""
-    with HistoryDb(db_path) as db, HistoryDb(db_path, check=False) as query_db:
+    """Keep history until stop is set (elastic without a shard); returns the rows written. The store (a file, or
+    a postgresql:// URL) is checked before joining the bus."""
+    with open_history(db_path) as db, open_history(db_path, check=False) as query_db:
         ownership = Membership(instance_name()) if shard is None else FixedShard(shard, instance_name())
         historian = Historian(db, ownership)
         retention = Retention(keep_days)
@@ -127,7 +129,7 @@ def run_historian(options: BusOptions, db_path: str | Path, *, shard: tuple[int,
                 if members is not None:
                     members.joined()
                 status = StatusReporter(Publishers(session), "historian", historian.intake, status_s)
-                log.info("history in %s (%d rows); answering %s; %s", db.path, db.count(), HISTORY_KEYS,
+                log.info("history in %s (%d rows); answering %s; %s", db.name, db.count(), HISTORY_KEYS,
                          "shard %d/%d" % shard if shard else f"elastic, {len(ownership.members) - 1} other "
                          "historian(s)")
                 for batch in batches(inbox, stop):
@@ -147,8 +149,9 @@ def run_historian(options: BusOptions, db_path: str | Path, *, shard: tuple[int,
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_service_arguments(parser, status=True)
-    parser.add_argument("--db", required=True, metavar="F.sqlite",
-                        help="the history file (created if missing; a restarted historian goes on with it)")
+    parser.add_argument("--db", required=True, metavar="F.sqlite|URL",
+                        help="the history file (created if missing; a restarted historian goes on with it), or a "
+                             "postgresql://user@host:port/db URL: a database several historians share")
     parser.add_argument("--shard", type=shard, default=None, metavar="K/N",
                         help="keep only switches in shard K of N (stable hash of the switch id, as the diagnoser's), "
                              "for good; default: elastic, the live historians split the fleet between them")

@@ -1,8 +1,8 @@
 """`railswitch history SW`: a switch's diagnoses and health over time, from the historians on the bus (a Zenoh
-get gathering every historian's reply) or from a history file (`--db F.sqlite`).
+get gathering every historian's reply) or from a history store (`--db F.sqlite`, or `--db postgresql://…`).
 
 A table by default, one row per throw; `--json` prints the messages as JSON lines, oldest first. `--db F
---salvage G` copies what a damaged history file still holds into a fresh one.
+--salvage G` copies what a damaged history file (SQLite) still holds into a fresh one.
 """
 from __future__ import annotations
 
@@ -15,7 +15,8 @@ from rich.table import Table
 
 from railswitch.schemas import MAX_LIMIT, Diagnosis, HistoryQuery, HistoryReply, SwitchHealth, decode, history_key
 from railswitch.schemas.history import format_time, parse_time
-from railswitch.services.adapters.history_db import HistoryDb, salvage
+from railswitch.services.adapters.history_db import salvage
+from railswitch.services.adapters.history_store import is_url, open_history
 from railswitch.services.adapters.zenoh_bus import BusError, BusOptions, open_session
 from railswitch.services.commands import options
 from railswitch.services.commands.watch import DECISION_STYLE, key_estimates, state_markup, to_limit
@@ -50,11 +51,11 @@ def from_bus(bus: BusOptions, switch_id: str, query: HistoryQuery, timeout_s: fl
 
 
 def from_file(path: str, switch_id: str, query: HistoryQuery) -> HistoryReply:
-    """The same answer a historian would give, read from its file."""
-    with HistoryDb(path, create=False) as db:
-        answer = HistoryAnswers(db, is_mine=lambda _: True, historian=str(path)).answer_query(query, switch_id)
+    """The same answer a historian would give, read from its file or database."""
+    with open_history(path, create=False) as db:
+        answer = HistoryAnswers(db, is_mine=lambda _: True, historian=db.name).answer_query(query, switch_id)
     if answer.error is not None:
-        raise HistoryError(f"{path}: {answer.error}")
+        raise HistoryError(f"{db.name}: {answer.error}")
     return decode(HistoryReply, answer.replies[0][1])
 
 
@@ -117,7 +118,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"the latest N diagnoses and N health messages (default {DEFAULT_LIMIT})")
     parser.add_argument("--kind", choices=("diagnosis", "health"), default=None, help="one kind of message only")
     parser.add_argument("--json", action="store_true", help="the messages as JSON lines, oldest first")
-    parser.add_argument("--db", metavar="F.sqlite", default=None, help="read a history file instead of the bus")
+    parser.add_argument("--db", metavar="F.sqlite|URL", default=None,
+                        help="read a history file, or a postgresql:// database, instead of the bus")
     parser.add_argument("--salvage", metavar="NEW.sqlite", default=None,
                         help="with --db: copy every row still readable in a damaged file into a new one")
     parser.add_argument("--timeout", type=options.bounded(float, 0.1, 600.0, "s"), default=10.0, metavar="S",
@@ -146,6 +148,9 @@ def run(args: argparse.Namespace) -> int:
 def _salvage(args: argparse.Namespace) -> int:
     if not args.db:
         return options.fail("--salvage needs --db (the damaged file)")
+    if is_url(args.db) or is_url(args.salvage):
+        return options.fail("--salvage reads and writes SQLite files only (a PostgreSQL server keeps its own data "
+                            "whole)")
     try:
         copied = salvage(args.db, args.salvage)
     except OSError as error:

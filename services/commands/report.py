@@ -2,7 +2,7 @@
 
 Per switch, `<switch>_health.png` draws each fault parameter over the throws with its ±2σ band, its limit and
 the throw at which the latest trend reaches it, from the switch's SwitchHealth messages: those a recording
-holds, else those its offline diagnosis gives (`--model`), or those a history file keeps (`--db`).
+holds, else those its offline diagnosis gives (`--model`), or those a history store keeps (`--db F.sqlite|URL`).
 `<switch>_estimates.png` draws each throw's estimates. Throws are whole numbers on every axis.
 """
 from __future__ import annotations
@@ -23,7 +23,7 @@ from matplotlib.ticker import MaxNLocator  # noqa: E402
 from railswitch.schemas.faults import FAULT_PARAMETERS  # noqa: E402
 from railswitch.services.core.fleet_diagnoser import DiagnosedThrow, Diagnoser, diagnose_messages  # noqa: E402
 from railswitch.schemas import MAX_LIMIT, HistoryQuery, HistoryReply, Message, SwitchHealth, decode  # noqa: E402
-from railswitch.services.adapters.history_db import HistoryDb  # noqa: E402
+from railswitch.services.adapters.history_store import open_history  # noqa: E402
 from railswitch.services.adapters.recordings import load_recording  # noqa: E402
 from railswitch.services.commands.options import add_model_argument, fail  # noqa: E402
 from railswitch.services.core.health_series import ParameterSeries, SwitchSeries, health_series  # noqa: E402
@@ -151,9 +151,9 @@ def save(fig: Figure, target: Path) -> Path:
 
 
 def health_from_db(path: str) -> list[SwitchHealth]:
-    """Every health message a history file keeps (the latest MAX_LIMIT of each switch), as a historian answers."""
-    with HistoryDb(path, create=False) as db:
-        answer = HistoryAnswers(db, lambda _: True, historian=path).answer_query(
+    """Every health message a history store keeps (the latest MAX_LIMIT of each switch), as a historian answers."""
+    with open_history(path, create=False) as db:
+        answer = HistoryAnswers(db, lambda _: True, historian=db.name).answer_query(
             HistoryQuery(kind="health", limit=MAX_LIMIT), None)
     return [h for _, payload in answer.replies for h in decode(HistoryReply, payload).health]
 
@@ -178,6 +178,7 @@ def write_report(recordings: list[str], out_dir: str, model: str | None = None, 
     velocity. Health comes from `db` when given, else from the single recording's health messages, else from
     its offline diagnosis (with `model`).
     """
+    healths = health_from_db(db) if db else None  # a store that cannot be read stops it before DIR is made
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     by_index: dict[tuple[str, int, str], list[tuple[str, CutThrow]]] = defaultdict(list)
@@ -191,9 +192,7 @@ def write_report(recordings: list[str], out_dir: str, model: str | None = None, 
     single = len(recordings) == 1
     fits = diagnosed(messages, model) if model and single else {}
     written = [throw_picture(out, key, curves, fits.get(key[:2]), model) for key, curves in sorted(by_index.items())]
-    if db:
-        healths = health_from_db(db)
-    else:
+    if healths is None:
         recorded = [m for m in messages if isinstance(m, SwitchHealth)] if single else []
         healths = recorded or [item.health for item in fits.values() if item.health is not None]
     return written + life_pictures(out, healths, fits)
@@ -227,8 +226,9 @@ def throw_picture(out: Path, key: tuple[str, int, str], curves: list[tuple[str, 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("recordings", nargs="*", metavar="F.mcap")
     parser.add_argument("--out", required=True, metavar="DIR")
-    parser.add_argument("--db", metavar="F.sqlite", default=None,
-                        help="draw each switch's health from a history file (railswitch historian)")
+    parser.add_argument("--db", metavar="F.sqlite|URL", default=None,
+                        help="draw each switch's health from a history file or postgresql:// database "
+                             "(railswitch historian)")
     add_model_argument(parser, "none", help_text="reduced model whose fits and estimates are drawn (one recording); "
                                                  "none: data only")
 

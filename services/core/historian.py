@@ -1,7 +1,7 @@
-"""The historian's core: diagnoses and health messages into the history file batch by batch, old rows
-pruned, and history queries answered from the file.
+"""The historian's core: diagnoses and health messages into the history store (an SQLite file or a PostgreSQL
+database) batch by batch, old rows pruned, and history queries answered from the store.
 
-Writing and answering each hold their own connection to the file (SQLite's WAL lets queries read while a
+Writing and answering each hold their own connection to the store (SQLite's WAL lets queries read while a
 batch is written), so the service runs them in two threads. Which switches are this historian's is its
 ownership (services/core/shards.py): a fixed shard, or the elastic membership of the live historians. Elastic,
 every historian reads every switch's messages, writes its own and holds the others' for a grace period, so the
@@ -30,14 +30,14 @@ from railswitch.schemas import (
     history_key,
 )
 from railswitch.schemas.history import MAX_TIME_NS
-from railswitch.services.adapters.history_db import HistoryDb, HistoryDbError, HistoryRow
+from railswitch.services.adapters.history_store import HistoryDbError, HistoryRow, HistoryStore
 from railswitch.services.adapters.zenoh_bus import Received
 from railswitch.services.core.intake import Intake
 from railswitch.services.core.shards import FixedShard, Ownership
 
 log = logging.getLogger("railswitch.historian")
 
-MAX_PENDING = 100_000  # rows kept in memory while the file cannot be written (a full disk), oldest dropped first
+MAX_PENDING = 100_000  # rows kept in memory while the store cannot be written, oldest dropped first
 DAY_NS = 86_400 * 10**9
 # Longer than a historian's death takes to be seen (at once for a closed connection, its session lease, 3 s, for
 # a silent one) plus its loop's poll: what its owner may not have written yet is still held by the others then.
@@ -78,7 +78,8 @@ class Historian:
     """Turns received payloads into history rows of this historian's switches and writes each batch in one
     transaction. Junk is counted per reason by the intake and never stored."""
 
-    def __init__(self, db: HistoryDb, ownership: Ownership | None = None, clock: Callable[[], float] = time.monotonic):
+    def __init__(self, db: HistoryStore, ownership: Ownership | None = None,
+                 clock: Callable[[], float] = time.monotonic):
         """Without ownership every switch is this historian's."""
         self.db = db
         self.ownership = ownership or FixedShard((1, 1), "this historian")
@@ -98,8 +99,8 @@ class Historian:
     def write(self, batch: Sequence[Received]) -> int:
         """Store the valid messages of a batch (and any left over from a failed write); returns rows written.
 
-        A file that cannot be written (a full disk) keeps the rows in memory and is tried again with the next
-        batch: the service goes on, and nothing is lost unless MAX_PENDING rows pile up."""
+        A store that cannot be written (a full disk, a database server gone) keeps the rows in memory and is tried
+        again with the next batch: the service goes on, and nothing is lost unless MAX_PENDING rows pile up."""
         self.held.expire(self.clock())
         rows = self._pending + self._taken + [row for item in batch if (row := self.row(item)) is not None]
         self._taken = []
@@ -110,7 +111,7 @@ class Historian:
         except HistoryDbError as error:
             return self._keep(rows, str(error))
         if self._pending:
-            log.info("the history file takes rows again; %d kept in memory are written", len(self._pending))
+            log.info("the history store takes rows again; %d kept in memory are written", len(self._pending))
         self._pending = []
         self.batches += 1
         self.written += new
@@ -119,7 +120,7 @@ class Historian:
 
     def _keep(self, rows: list[HistoryRow], reason: str) -> int:
         if self.write_failures == 0 or not self._pending:
-            log.error("cannot write the history file (%s); keeping %d rows in memory and retrying", reason, len(rows))
+            log.error("cannot write the history store (%s); keeping %d rows in memory and retrying", reason, len(rows))
         self.write_failures += 1
         self.dropped += max(0, len(rows) - MAX_PENDING)
         self._pending = rows[-MAX_PENDING:]
@@ -218,10 +219,10 @@ def reply_payload(switch_id: str, historian: str, diagnoses: list[str], health: 
 
 
 class HistoryAnswers:
-    """Answers history queries from its own connection to the file. Bad queries are counted per reason and
+    """Answers history queries from its own connection to the store. Bad queries are counted per reason and
     logged once per reason."""
 
-    def __init__(self, db: HistoryDb, is_mine: Callable[[str], bool], historian: str):
+    def __init__(self, db: HistoryStore, is_mine: Callable[[str], bool], historian: str):
         self.db = db
         self.is_mine = is_mine
         self.historian = historian
