@@ -25,6 +25,36 @@ def test_poly_training_on_a_small_data_set_converges_and_is_deterministic_on_any
     assert all(float(weights[k]) >= 0 for k in ("m", "c0", "c1", "c2", "d0", "d1", "d2"))
 
 
+# One training in a process of its own, as on another machine: its BLAS kernel and threads set before numpy loads.
+TRAIN_ELSEWHERE = """
+import json, sys
+from railswitch.models.rail_models import REPRESENTATIONS
+from railswitch.services.adapters.compiled import compiled_plant
+from railswitch.services.core.model_maintenance import reproducible_training
+trained = reproducible_training(REPRESENTATIONS["poly"], compiled_plant(exact=True), series_seeds=(5,),
+                                threads=int(sys.argv[1]))
+print(json.dumps(trained.weights.tolist()))
+"""
+
+
+def test_poly_training_gives_the_same_weights_under_other_blas_kernels_and_thread_counts():
+    """OpenBLAS picks its kernels by processor (OPENBLAS_CORETYPE stands in for another one, x86 only) and sums
+    differently on other thread counts; the weights agree within what training promises across machines."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    weights = []
+    for coretype, threads in (("Sandybridge", "2"), ("Prescott", "1")):
+        env = {**os.environ, "OPENBLAS_CORETYPE": coretype, "OPENBLAS_NUM_THREADS": threads}
+        result = subprocess.run([sys.executable, "-c", TRAIN_ELSEWHERE, threads], capture_output=True, text=True,
+                                env=env, timeout=600)
+        assert result.returncode == 0, result.stderr
+        weights.append(np.array(json.loads(result.stdout.splitlines()[-1])))
+    assert training.weights_difference(REPRESENTATIONS["poly"], weights[1], weights[0]) <= training.REPRODUCIBLE_WEIGHTS
+
+
 def test_train_command_writes_loadable_weights(tmp_path):
     import json
     import subprocess
