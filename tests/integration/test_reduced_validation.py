@@ -29,10 +29,8 @@ def test_poly_training_on_a_small_data_set_converges_and_is_deterministic_on_any
 TRAIN_ELSEWHERE = """
 import json, sys
 from railswitch.models.rail_models import REPRESENTATIONS
-from railswitch.services.adapters.compiled import compiled_plant
 from railswitch.services.core.model_maintenance import reproducible_training
-trained = reproducible_training(REPRESENTATIONS["poly"], compiled_plant(exact=True), series_seeds=(5,),
-                                threads=int(sys.argv[1]))
+trained = reproducible_training(REPRESENTATIONS["poly"], series_seeds=(5,), threads=int(sys.argv[1]))
 print(json.dumps(trained.weights.tolist()))
 """
 
