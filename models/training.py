@@ -435,8 +435,9 @@ STAGE_ITERATIONS = 40
 # threads: the weights' largest difference in the solver's order-one parameters z, relative to the parameter or 1
 # where it is smaller (weights_difference). The data, training's functions and the solver's arithmetic are the same
 # bit for bit there (EXACT machine code, the plant's beam solved in scalar recurrences, SAME_ON_EVERY_PROCESSOR), and
-# so are the weights under every OpenBLAS kernel tried; the bound leaves room for a rounding elsewhere, which a fit
-# run to its end damps, and not for BLAS's reordered sums, which moved poly's weights by 3.6e-7 on one series.
+# so are the weights under every OpenBLAS kernel and thread count tried; the bound leaves room for a rounding
+# elsewhere that a fit run to its end damps (with BLAS's reordered sums in its solver, poly's on one series moved
+# 4e-10). The causal rail's fine-tuning, which ends at its budget, would follow such a rounding further.
 REPRODUCIBLE_WEIGHTS = 1e-9
 
 
