@@ -25,6 +25,83 @@ BROYDEN_MARGIN = 10.0
 GAUSS_NEWTON = 1e-9  # the damping of the step whose decrease `hopeless` judges (_promised): none to speak of
 
 
+class Algebra:
+    """The solver's dense linear algebra through numpy's BLAS and LAPACK: the fastest, its last digits those of the
+    kernel OpenBLAS picks for the processor and of its number of threads."""
+
+    def dot(self, x: np.ndarray, y: np.ndarray) -> float:
+        """x'y."""
+        return float(x @ y)
+
+    def squares(self, r: np.ndarray) -> float:
+        """r'r."""
+        return self.dot(r, r)
+
+    def quadratic(self, x: np.ndarray, a: np.ndarray) -> float:
+        """x'a x."""
+        return float(x @ a @ x)
+
+    def gradient(self, a: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """a'r."""
+        return a.T @ r
+
+    def gram(self, a: np.ndarray) -> np.ndarray:
+        """a'a (of a copy: numpy's gemm, the digits the diagnosis's fits were tuned with; a'a of one buffer is syrk's)."""
+        return a.T @ a.copy()
+
+    def solve(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """a^-1 b, a symmetric positive definite."""
+        return np.linalg.solve(a, b)
+
+
+class SameOnEveryProcessor(Algebra):
+    """The same linear algebra in numbers that do not depend on the processor or the threads: sums in numpy's own
+    fixed order (a pairwise sum along a row, rows added one after the other), a'a from BLAS products that are exact
+    whatever their order, and a Cholesky factorisation written out. For training, whose fits run for many iterations
+    and whose weights should be the same on every machine; slower than BLAS by a few milliseconds a solve."""
+
+    def dot(self, x: np.ndarray, y: np.ndarray) -> float:
+        return float(np.sum(x * y))
+
+    def quadratic(self, x: np.ndarray, a: np.ndarray) -> float:
+        return self.dot(self.gradient(a, x), x)
+
+    def gradient(self, a: np.ndarray, r: np.ndarray) -> np.ndarray:
+        return np.sum(a * r[:, None], axis=0)
+
+    def gram(self, a: np.ndarray) -> np.ndarray:
+        """a'a to 2^-2b of each column's largest entry: every column scaled by a power of two and split into two
+        integers of b bits (high, low), where the sum of a'a's n products of b-bit integers stays below 2^53. So
+        high'high and high'low are exact in any summation order, with or without fused multiply-adds (Ozaki,
+        Ogita, Oishi and Rump, Numer. Algorithms 59, 2012, error-free splitting of matrix products)."""
+        bits = (53 - int(np.ceil(np.log2(max(a.shape[0], 2))))) // 2
+        scale = np.ldexp(1.0, bits - np.frexp(np.max(np.abs(a), axis=0))[1])  # |a * scale| < 2^bits
+        scaled = a * scale
+        high = np.rint(scaled)
+        low = np.rint((scaled - high) * 2.0**bits)  # |scaled - high| <= 1/2: below 2^(bits - 1)
+        cross = high.T @ low
+        return (high.T @ high + (cross + cross.T) * 2.0**-bits) / np.outer(scale, scale)
+
+    def solve(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        n = len(b)
+        lower = np.zeros_like(a)
+        for j in range(n):
+            row = lower[j, :j]
+            lower[j, j] = np.sqrt(a[j, j] - np.sum(row * row))
+            lower[j + 1:, j] = (a[j + 1:, j] - np.sum(lower[j + 1:, :j] * row, axis=1)) / lower[j, j]
+        y = np.zeros(n)
+        for i in range(n):
+            y[i] = (b[i] - np.sum(lower[i, :i] * y[:i])) / lower[i, i]
+        x = np.zeros(n)
+        for i in range(n - 1, -1, -1):
+            x[i] = (y[i] - np.sum(lower[i + 1:, i] * x[i + 1:])) / lower[i, i]
+        return x
+
+
+BLAS = Algebra()
+SAME_ON_EVERY_PROCESSOR = SameOnEveryProcessor()
+
+
 @dataclass
 class Solution:
     """Where the solver stopped: parameters, residual and Jacobian there, r'r, iterations, r'r per iteration, and
@@ -47,7 +124,7 @@ def levenberg_marquardt(linearise: Linearise, z0: np.ndarray, *, cost: Callable[
                         hopeless: Callable[[float, float], bool] | None = None,
                         progress: Callable[[int, float], None] | None = None,
                         jacobian: np.ndarray | None = None,
-                        first: tuple[np.ndarray, np.ndarray] | None = None) -> Solution:
+                        first: tuple[np.ndarray, np.ndarray] | None = None, algebra: Algebra = BLAS) -> Solution:
     """Minimise r'r within [lower, upper] from z0.
 
     `cost(z)`, when given, evaluates r'r alone for trial points (cheaper than `linearise`, which
@@ -71,7 +148,8 @@ def levenberg_marquardt(linearise: Linearise, z0: np.ndarray, *, cost: Callable[
     too little to step, `linearise` runs at the start and the fit goes on from there as without them.
 
     `first`, when given, is what `linearise` returns at z0 (computed before, to choose the start): the fit does not
-    compute it again.
+    compute it again. `algebra`: how the normal equations are formed and solved (SameOnEveryProcessor: the same
+    numbers on any processor and number of threads).
     """
     z0 = np.asarray(z0, dtype=float)
     n = z0.size
@@ -88,31 +166,31 @@ def levenberg_marquardt(linearise: Linearise, z0: np.ndarray, *, cost: Callable[
         r, jacobian = linearise(z)
     exact = not borrowed  # `jacobian` is linearise's at z, not Broyden's update or borrowed
     linearised = int(exact)
-    value = float(r @ r)
+    value = algebra.squares(r)
     if not np.isfinite(value):
         raise ValueError("the starting point gives a non-finite residual; start closer")
     damping, k, history = 1e-4, 0, [value]
     while k < iterations:
         k += 1
-        move, gradient, hessian = _normal_equations(jacobian * scale, r, z, low, high)
+        move, gradient, hessian = _normal_equations(jacobian * scale, r, z, low, high, algebra)
         if not exact:  # the update only says whether the fit has converged; else the exact Jacobian goes on
             if not move.any() and not borrowed:
                 break
             if move.any():
-                _, _, predicted, cut = _proposal(z, move, gradient, hessian, damping, scale, low, high)
+                _, _, predicted, cut = _proposal(z, move, gradient, hessian, damping, scale, low, high, algebra)
                 if predicted < tolerance * value / BROYDEN_MARGIN and not cut:
                     break
             if not borrowed or not move.any():
                 r, jacobian = linearise(z)
                 exact, borrowed, linearised = True, False, linearised + 1
-                move, gradient, hessian = _normal_equations(jacobian * scale, r, z, low, high)
+                move, gradient, hessian = _normal_equations(jacobian * scale, r, z, low, high, algebra)
         if not move.any():
             break
-        if exact and hopeless is not None and hopeless(value, _promised(move, gradient, hessian)):
+        if exact and hopeless is not None and hopeless(value, _promised(move, gradient, hessian, algebra)):
             break
         accepted, trial_linearised, trial_residual = False, None, None
         for attempt in range(MAX_ATTEMPTS):
-            step, trial, predicted, cut = _proposal(z, move, gradient, hessian, damping, scale, low, high)
+            step, trial, predicted, cut = _proposal(z, move, gradient, hessian, damping, scale, low, high, algebra)
             # Converged (first attempt) or given up (after a failed one) once the step promises no visible
             # decrease: the linear model's r'r, which is what a step this small would achieve. A step the bounds
             # cut short is not that step: cut along some parameters and whole along others, it may promise an
@@ -125,10 +203,10 @@ def levenberg_marquardt(linearise: Linearise, z0: np.ndarray, *, cost: Callable[
                 continue
             if residual is not None:
                 trial_residual = residual(trial)
-                trial_value = float(trial_residual @ trial_residual)
+                trial_value = algebra.squares(trial_residual)
             elif cost is None:
                 trial_linearised = linearise(trial)
-                trial_value = float(trial_linearised[0] @ trial_linearised[0])
+                trial_value = algebra.squares(trial_linearised[0])
             else:
                 trial_value = cost(trial)
             if np.isfinite(trial_value) and trial_value < value:
@@ -151,7 +229,7 @@ def levenberg_marquardt(linearise: Linearise, z0: np.ndarray, *, cost: Callable[
             r, jacobian = trial_linearised if trial_linearised is not None else linearise(trial)
             linearised += 1
         z = trial
-        value, damping = float(r @ r), max(damping / 10, 1e-9)
+        value, damping = algebra.squares(r), max(damping / 10, 1e-9)
         history.append(value)
         if progress is not None:
             progress(k, value)
@@ -163,20 +241,20 @@ def levenberg_marquardt(linearise: Linearise, z0: np.ndarray, *, cost: Callable[
 
 
 def _normal_equations(scaled: np.ndarray, r: np.ndarray, z: np.ndarray, low: np.ndarray,
-                      high: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                      high: np.ndarray, algebra: Algebra) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The parameters free to move (not at a bound their gradient points out of), the gradient J'r and
     the Gauss-Newton Hessian J'J of the free ones, in scaled units."""
-    gradient = scaled.T @ r
+    gradient = algebra.gradient(scaled, r)
     active = ((z <= low) & (gradient > 0)) | ((z >= high) & (gradient < 0))
     move = ~active
-    return move, gradient, scaled[:, move].T @ scaled[:, move]
+    return move, gradient, algebra.gram(scaled[:, move])
 
 
-def _promised(move: np.ndarray, gradient: np.ndarray, hessian: np.ndarray) -> float:
+def _promised(move: np.ndarray, gradient: np.ndarray, hessian: np.ndarray, algebra: Algebra) -> float:
     """The decrease of r'r at the minimum of the linearised residual over the free parameters, bounds ignored: g'H^-1 g,
     the most any step can promise (a direction the residual does not see promises without limit)."""
     moving = gradient[move]
-    return float(moving @ np.linalg.solve(_damped(hessian, GAUSS_NEWTON), moving))
+    return algebra.dot(moving, algebra.solve(_damped(hessian, GAUSS_NEWTON), moving))
 
 
 def _damped(hessian: np.ndarray, damping: float) -> np.ndarray:
@@ -187,16 +265,17 @@ def _damped(hessian: np.ndarray, damping: float) -> np.ndarray:
 
 
 def _proposal(z: np.ndarray, move: np.ndarray, gradient: np.ndarray, hessian: np.ndarray, damping: float,
-              scale: np.ndarray, low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, bool]:
+              scale: np.ndarray, low: np.ndarray, high: np.ndarray,
+              algebra: Algebra) -> tuple[np.ndarray, np.ndarray, float, bool]:
     """The damped step (scaled units), the trial point it reaches within the bounds, the decrease of r'r that the
     linearised residual predicts there, and whether the bounds cut the step short."""
     step = np.zeros(z.size)
     moving = gradient[move]
-    step[move] = np.linalg.solve(_damped(hessian, damping), -moving)
+    step[move] = algebra.solve(_damped(hessian, damping), -moving)
     reached = z + step * scale
     trial = np.minimum(np.maximum(reached, low), high)
     taken = ((trial - z) / scale)[move]  # parameters held at a bound do not move
-    predicted = float(-(2.0 * moving @ taken + taken @ hessian @ taken))
+    predicted = -(2.0 * algebra.dot(moving, taken) + algebra.quadratic(taken, hessian))
     return step, trial, predicted, bool((trial != reached).any())
 
 

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 
+from railswitch.models.training import STAGE_ITERATIONS
 from railswitch.services.commands.options import add_model_argument, bounded, fail, models_named
 from railswitch.services.core.model_maintenance import train_and_save
 
@@ -10,7 +11,7 @@ from railswitch.services.core.model_maintenance import train_and_save
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_model_argument(parser, "all", default="all")
     parser.add_argument("--seed", type=bounded(int, 0, 2**32 - 1), default=0)
-    parser.add_argument("--iterations", type=bounded(int, 1, 1000), default=40,
+    parser.add_argument("--iterations", type=bounded(int, 1, 1000), default=STAGE_ITERATIONS,
                         help="Levenberg-Marquardt iterations per fitting stage")
     parser.add_argument("--threads", type=bounded(int, 1, 256), default=None,
                         help="threads that share the training data (default: one per core; the weights are the same)")

@@ -10,9 +10,9 @@ from pathlib import Path
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-from railswitch.models.rail_models import REPRESENTATIONS
+from railswitch.models.rail_models import REPRESENTATIONS, Representation
 from railswitch.models.reduced import STATES, ReducedSwitch
-from railswitch.models.training import TRAIN_SEEDS, train
+from railswitch.models.training import STAGE_ITERATIONS, TRAIN_SEEDS, Trained, train
 from railswitch.models.validation import quick_validation
 from railswitch.services.adapters import model_store
 from railswitch.services.adapters.compiled import MachineCode, compiled_plant
@@ -20,7 +20,7 @@ from railswitch.services.core.calibration import calibrate, healthy_check
 from railswitch.services.core.fleet_diagnoser import Diagnoser
 
 
-def train_and_save(name: str, *, seed: int = 0, iterations: int = 40, out_dir: str | None = None,
+def train_and_save(name: str, *, seed: int = 0, iterations: int = STAGE_ITERATIONS, out_dir: str | None = None,
                    replace_shipped: bool = False, threads: int | None = None) -> tuple[Path, float]:
     """Train one representation with a live progress line, validate it quickly and store its document
     (model_store.save: the user directory unless told otherwise); its path and the training time. `threads`
@@ -38,16 +38,21 @@ def train_and_save(name: str, *, seed: int = 0, iterations: int = 40, out_dir: s
                 tasks[stage] = progress.add_task(stage, total=iterations, cost="")
             progress.update(tasks[stage], completed=iteration, cost=f"{cost:.4g}")
 
-        plant = compiled_plant(exact=True)  # the data training was validated on (EXACT)
-        trained = train(representation, plant, seed=seed, iterations=iterations, progress=report, threads=threads,
-                        compiler=MachineCode(exact=True))
+        trained = reproducible_training(representation, seed=seed, iterations=iterations, progress=report,
+                                        threads=threads)
     seconds = time.perf_counter() - start
     provenance = {"seed": seed, "series_seeds": list(TRAIN_SEEDS), "series_seconds": 100.0, "sample_rate_hz": 50.0,
                   "iterations": iterations, "stages": trained.stages, "seconds": round(seconds, 1), "threads": threads}
     document = model_store.weights_document(representation, trained.weights, provenance)
     document["validation"] = quick_validation(ReducedSwitch(representation, trained.weights, compiler=MachineCode()),
-                                              plant)
+                                              compiled_plant(exact=True))  # the data training was validated on
     return model_store.save(name, document, out_dir=out_dir, replace_shipped=replace_shipped), seconds
+
+
+def reproducible_training(representation: Representation, **options) -> Trained:
+    """models/training.py train as every machine runs it: its data's plant and its own functions in EXACT machine
+    code (plain IEEE arithmetic, not this processor's instructions)."""
+    return train(representation, compiled_plant(exact=True), compiler=MachineCode(exact=True), **options)
 
 
 class CheckFailed(Exception):

@@ -25,6 +25,36 @@ def test_poly_training_on_a_small_data_set_converges_and_is_deterministic_on_any
     assert all(float(weights[k]) >= 0 for k in ("m", "c0", "c1", "c2", "d0", "d1", "d2"))
 
 
+# One training in a process of its own, as on another machine: its BLAS kernel and threads set before numpy loads.
+TRAIN_ELSEWHERE = """
+import json, sys
+from railswitch.models.rail_models import REPRESENTATIONS
+from railswitch.services.core.model_maintenance import reproducible_training
+trained = reproducible_training(REPRESENTATIONS["poly"], series_seeds=(5,), threads=int(sys.argv[1]))
+print(json.dumps(trained.weights.tolist()))
+"""
+
+
+def test_poly_training_gives_the_same_weights_bit_for_bit_under_other_blas_kernels_and_thread_counts():
+    """OpenBLAS picks its kernels by processor (OPENBLAS_CORETYPE stands in for another one, x86 only) and sums
+    differently on other thread counts; neither reaches training's data or its solver's arithmetic, so the weights are
+    equal, not only within REPRODUCIBLE_WEIGHTS: converged, poly's fit damps BLAS's reordered sums to 4e-10 (under
+    that bound), and equality is what sees them. Fails with the solver on BLAS, or the beam's shape by sparse LU."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    weights = []
+    for coretype, threads in (("Sandybridge", "2"), ("Prescott", "1")):
+        env = {**os.environ, "OPENBLAS_CORETYPE": coretype, "OPENBLAS_NUM_THREADS": threads}
+        result = subprocess.run([sys.executable, "-c", TRAIN_ELSEWHERE, threads], capture_output=True, text=True,
+                                env=env, timeout=600)
+        assert result.returncode == 0, result.stderr
+        weights.append(np.array(json.loads(result.stdout.splitlines()[-1])))
+    np.testing.assert_array_equal(weights[1], weights[0])
+
+
 def test_train_command_writes_loadable_weights(tmp_path):
     import json
     import subprocess
