@@ -266,11 +266,11 @@ class Received(NamedTuple):
 class Inbox:
     """Subscriptions whose callbacks only enqueue; the service drains the queue in its own thread.
 
-    The kinds in `catch_up` (railswitch/*/<kind>) come through Zenoh advanced subscribers instead (and not through a
-    plain subscription that would also match them): on start they ask every publisher's cache for what it kept (the throws published
-    while this service was down), and once running they fetch from the cache a sample they notice they missed.
-    Samples older than a cache holds are gone; Zenoh's count of them is `missed` (per publisher), logged once per
-    publisher, and the services tell which throws they were by the gap in each switch's throw indices."""
+    The kinds in `catch_up` (railswitch/*/<kind>) come through Zenoh advanced subscribers instead (and not through
+    a plain subscription that would also match them): on start they ask every publisher's cache for what it kept
+    (the throws published while this service was down), and once running they fetch from the cache a sample they
+    notice they missed. Samples older than a cache holds are gone; Zenoh's count of them is `missed`, logged once
+    per publisher, and the services tell which throws they were by the gap in each switch's throw indices."""
 
     def __init__(self, session: zenoh.Session, keys: list[str], catch_up: tuple[str, ...] = ()):
         self.queue: queue.SimpleQueue[Received] = queue.SimpleQueue()
