@@ -451,10 +451,11 @@ def decode_counted(model_cls: type[M], data: bytes) -> tuple[M, list[str]]:
     "Changing the contract"): every unknown field, nested ones by their dotted path (`estimate.since`, list
     items unnumbered: `hypotheses.note`), and `contract=N` when the payload was written to a newer contract.
 
-    The payload is parsed a second time, by the JSON parser pydantic validated it with (it takes all the
-    validator took), to see what validation dropped: models keep only what they know."""
+    A payload that reads back exactly as this version writes it (every payload of a publisher of this version)
+    holds nothing unknown. Any other is parsed a second time, by the JSON parser pydantic validated it with (it
+    takes all the validator took), to see what validation dropped: models keep only what they know."""
     message = decode(model_cls, data)
-    unknown = sorted(set(_unknown_fields(message, from_json(data))))
+    unknown = [] if encode(message) == data else sorted(set(_unknown_fields(message, from_json(data))))
     if isinstance(message, Message) and message.contract > CONTRACT_VERSION:
         unknown.append(f"contract={message.contract}")
     return message, unknown

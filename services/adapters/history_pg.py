@@ -3,7 +3,9 @@ historians write at once and Grafana, psql or pandas read.
 
 Table `railswitch_history` holds what SQLite's `history` does, keyed by (switch_id, kind, t_ns, throw_index):
 the key makes a message that two historians (or one, twice) write one row, and serves a switch's latest rows of
-a kind. `railswitch_schema_version` says which layout the database has. Our own names leave the server's other
+a kind. A row stays whole in its page up to 8160 bytes (toast_tuple_target; a diagnosis is some 4 kB) rather than
+having its payload compressed into the TOAST table beyond 2 kB, PostgreSQL's default: reading a switch's latest
+1000 diagnoses then fetches no TOAST chunks and decompresses nothing, which took most of such a query's time. `railswitch_schema_version` says which layout the database has. Our own names leave the server's other
 tables alone. A batch is copied into a temporary table and inserted from there in key order with ON CONFLICT DO
 NOTHING: one round trip for the rows, and two historians writing the same rows take their locks in the same
 order, so neither waits for the other in a deadlock.
@@ -42,7 +44,7 @@ CREATE TABLE {TABLE} (
     t_ns bigint NOT NULL,
     payload text NOT NULL,
     PRIMARY KEY (switch_id, kind, t_ns, throw_index)
-)
+) WITH (toast_tuple_target = 8160)
 """
 INSERT = (f"INSERT INTO {TABLE} ({COLUMNS}) SELECT {COLUMNS} FROM {INCOMING} "
           "ORDER BY switch_id, kind, t_ns, throw_index ON CONFLICT DO NOTHING")
