@@ -11,10 +11,13 @@ this benchmark included, used then (to a few percent, so it can read slightly ne
 `achieved_speed` is simulated over wall time between the first and the last end event.
 
 `--records` soaks the fleet topology instead: `--switches` switches (default 200) sending each throw as
-one record, once per 15 simulated minutes as real switches throw, at `--speed` (default 10), into two
-elastic diagnosers and two elastic historians writing one database (`--db`, a PostgreSQL URL, or by
-default an SQLite file in the scratch folder). `lost` is throws published without a diagnosis plus
-diagnoses published that the database does not hold; `stored_twice` throws it holds more than once.
+one record, every `--interval` simulated seconds (default 300: a busy switch, 288 throws a day), at
+`--speed` (default 10), into two elastic diagnosers and two elastic historians writing one database
+(`--db`, a PostgreSQL URL, or by default an SQLite file in the scratch folder). `lost` is throws
+published without a diagnosis plus diagnoses published that the database does not hold;
+`stored_twice` throws it holds more than once. Memory is probed first once every switch is past its
+commissioning (its state holds what its throws in service will: a commissioning switch's grows with
+each throw), at the latest halfway through the run, and last just before stopping.
 """
 from __future__ import annotations
 
@@ -34,6 +37,7 @@ import numpy as np
 from benchmarks.common import emit, parser
 from railswitch.schemas import Diagnosis, MotorSample, ThrowEvent, decode, parse_key_expr
 from railswitch.services.adapters.zenoh_bus import BusOptions, Inbox, open_session
+from railswitch.models.switch_diagnosis import COMMISSIONING_THROWS
 from railswitch.services.commands.demo import INTERVAL_S, demo_scenario
 from railswitch.services.adapters.recordings import RecordingReader
 from railswitch.services.adapters.processes import ServiceProcesses, free_loopback_endpoint, wait_ready
@@ -159,10 +163,11 @@ def rejected(processes: ServiceProcesses, process: subprocess.Popen) -> int:
 
 def records_soak(args) -> dict:
     """The fleet topology for --minutes (see the module's docstring)."""
-    from benchmarks.bus import RECORD_INTERVAL_S, RecordObserver, history_counts, routed_bus
+    from benchmarks.bus import RecordObserver, history_counts, routed_bus
 
     run_s = 60.0 * args.minutes
-    first_s = 60.0 if args.minutes >= 2 else run_s / 3
+    commissioned_s = (2 * COMMISSIONING_THROWS + 1) * args.interval / args.speed
+    first_s = min(max(60.0, commissioned_s), run_s / 2) if args.minutes >= 2 else run_s / 3
     with routed_bus() as (work, library, processes, endpoint, session):
         observer = RecordObserver(session)
         db = args.db or str(work / "history.sqlite")
@@ -171,7 +176,7 @@ def records_soak(args) -> dict:
         started |= {f"historian-{k}": processes.start("historian", "--connect", endpoint, "--db", db) for k in (1, 2)}
         wait_ready(session, processes, diagnoser=2, historian=2)
         scenario = work / "fleet.toml"
-        scenario.write_text(f"interval_s = {RECORD_INTERVAL_S}\n" + "".join(
+        scenario.write_text(f"interval_s = {args.interval}\n" + "".join(
             f'[[switches]]\nid = "sw{k + 1}"\nthrows = 100000\n' for k in range(args.switches)))
         started["simulator"] = processes.start("simulator", "--connect", endpoint, "--as-records", "--scenario",
                                                str(scenario), "--speed", f"{args.speed:g}", "--throws-from",
@@ -198,6 +203,7 @@ def records_soak(args) -> dict:
     window_s = last.at_s - first.at_s
     return {
         "records": True, "minutes": args.minutes, "switches": args.switches, "speed": args.speed,
+        "interval_s": args.interval, "first_probe_s": round(first_s, 1),
         "throws": throws, "diagnoses": diagnosed, "stored": stored, "stored_twice": stored_twice,
         "lost": observer.undiagnosed() + max(diagnosed - (stored - stored_twice), 0),
         "rss_mb": {name: [round(first.rss_mb[name], 1), round(last.rss_mb[name], 1)] for name in pids},
@@ -217,6 +223,7 @@ def main() -> None:
     p.add_argument("--speed", type=float, default=None, help=f"x real time (default {SPEED:g}, 10 with --records)")
     p.add_argument("--records", action="store_true", help="the fleet topology as records (see above)")
     p.add_argument("--db", default=None, help="with --records: the historians' database")
+    p.add_argument("--interval", type=float, default=300.0, help="with --records: simulated s between a switch's throws")
     args = p.parse_args()
     if args.records:
         args.switches, args.speed = args.switches or 200, args.speed or 10.0
