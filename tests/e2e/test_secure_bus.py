@@ -317,3 +317,20 @@ def test_simulator_diagnoser_and_historian_processes_work_through_the_secured_ro
         wait_for(lambda: stored.extend(history()) or stored, 30, "the historian's answer")
     assert [(d.switch_id, d.throw_index, d.decision) for d in collector.received] == [("sw2", 0, "nominal")]
     assert [(d["switch_id"], d["throw_index"], d["decision"]) for d in stored] == [("sw2", 0, "nominal")]
+
+
+def test_a_diagnoser_started_late_catches_up_from_the_simulators_cache_through_the_secured_router(bus, tmp_path):
+    """The advanced publishers' caches live under <key>/@adv/, which the policy must let the simulator keep and
+    the diagnoser ask: the records published before any diagnoser ran are diagnosed once one starts."""
+    with ServiceProcesses(tmp_path) as services, bus.session("recorder") as reader:
+        collector = DiagnosisCollector(reader)
+        simulator = services.start("simulator", "--zenoh-config", bus.config_file("simulator"), "--connect",
+                                   bus.endpoint, "--switch-id", "sw3", "--throws", "60", "--interval", "10",
+                                   "--speed", "20", "--as-records")
+        early = threading.Event()
+        reader.declare_subscriber("railswitch/sw3/record", lambda sample: early.set())
+        wait_for(early.is_set, 60, "the first record")
+        services.start("diagnoser", "--zenoh-config", bus.config_file("diagnoser"), "--connect", bus.endpoint)
+        wait_for(lambda: ("sw3", 0) in collector.decisions(), 90, "throw 0, published before the diagnoser ran")
+        assert simulator.poll() is None, "the simulator (and its cache) must outlive the diagnoser's start"
+    assert ("sw3", 0) in collector.decisions()
