@@ -325,6 +325,8 @@ class HealthTracker:
 
     def reset(self) -> None:
         """A repaired or re-commissioned switch starts afresh."""
+        self.last_throw: float | None = None  # the latest throw's place on the histories' axis
+        self.renumbered = 0  # added to the source's throw indices since it numbered them from 0 again
         self.filters: dict[str, TrendFilter] = {}
         self.histories: dict[str, History] = {}
         self.states: dict[str, str] = {}
@@ -346,7 +348,8 @@ class HealthTracker:
         """What a restarted diagnoser needs to go on tracking: every filter and the alarm states."""
         return {"filters": {name: f.to_dict() for name, f in self.filters.items()}, "states": dict(self.states),
                 "histories": {name: h.to_dict() for name, h in self.histories.items() if h.rows},
-                "calls": {name: list(call) for name, call in self._calls.items()}}
+                "calls": {name: list(call) for name, call in self._calls.items()},
+                "last_throw": self.last_throw, "renumbered": self.renumbered}
 
     def load(self, data: dict) -> None:
         for name, filter_state in data["filters"].items():
@@ -357,9 +360,22 @@ class HealthTracker:
                 self.histories[name] = History.from_dict(rows)
         self.states.update({name: s for name, s in data["states"].items() if name in self.states})
         self._calls.update({name: (c[0], int(c[1])) for name, c in data["calls"].items() if name in self._calls})
+        # a state saved before these were kept: its histories' latest throw
+        self.last_throw = data.get("last_throw", max((h.rows[-1][0] for h in self.histories.values() if h.rows),
+                                                     default=None))
+        self.renumbered = int(data.get("renumbered", 0))
+
+    def _place(self, throw_index: int) -> float:
+        """A throw's place on the histories' axis: its index, moved on past the latest throw when the source numbers
+        its throws from 0 again (a trackside unit restarted or replaced), so the switch's life goes on forward."""
+        if self.last_throw is not None and throw_index + self.renumbered <= self.last_throw:
+            self.renumbered = int(self.last_throw) + 1 - throw_index
+        self.last_throw = float(throw_index + self.renumbered)
+        return self.last_throw
 
     def update(self, throw_index: int, estimates: dict[str, tuple[float, float]]) -> Health:
         """`estimates`: parameter -> (value, fit std) from the hypotheses this throw could see."""
+        place = self._place(throw_index)
         out = {}
         for name, tracker in self.filters.items():
             tracker.predict()
@@ -370,8 +386,8 @@ class HealthTracker:
                 outlier, step, turned = tracker.update(value, variance)
                 if turned:  # the growth so far is over: the history starts at the step
                     self.histories[name] = History(pending=self.histories[name].pending)
-                self.histories[name].record(throw_index, value, variance, outlier, step)
-            out[name] = self._health(name, tracker, self.histories[name].broken_stick(throw_index), step)
+                self.histories[name].record(place, value, variance, outlier, step)
+            out[name] = self._health(name, tracker, self.histories[name].broken_stick(place), step)
         ranked = [h for h in out.values() if self.filters[h.name].updates]
         worst = min(ranked, key=lambda h: (h.throws_to_limit if h.throws_to_limit is not None else np.inf,
                                            -h.level / h.limit)) if ranked else None

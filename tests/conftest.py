@@ -26,6 +26,17 @@ def shipped_models_only(tmp_path_factory):
     patch.undo()
 
 
+@pytest.fixture(autouse=True, scope="module")
+def module_state_directory(tmp_path_factory):
+    """The same for what a module-scoped fixture runs (a live run several tests read): it starts before any test's
+    own folder is set, and without this would write the developer's default folder, where every run of the suite
+    left its switches (sw `faulty` kept on growing a history until its trend fit failed)."""
+    patch = pytest.MonkeyPatch()
+    patch.setenv("RAILSWITCH_STATE", str(tmp_path_factory.mktemp("module-state")))
+    yield
+    patch.undo()
+
+
 @pytest.fixture(autouse=True)
 def own_state_directory(tmp_path_factory, monkeypatch):
     """Baselines the diagnosers of a test commission (in this process and in every service process it starts) go

@@ -128,6 +128,27 @@ def test_a_tracker_saved_and_loaded_forecasts_as_before():
     assert restored.update(k, estimate) == tracker.update(k, estimate)
 
 
+
+def test_a_source_that_numbers_its_throws_from_0_again_goes_on_with_the_same_trend():
+    """A trackside unit restarted or replaced numbers its throws from 0 again: the switch's life goes on, so the
+    growth seen so far keeps its slope, whether or not the tracker was saved and loaded in between (it crashed
+    fitting its trend on throw indices that went back)."""
+    rate, rng = 25.0, np.random.default_rng(5)
+    tracker, once = HealthTracker(), HealthTracker()
+    for k in range(60):
+        estimate = {"bearing_friction": (rate * k + rng.normal(0.0, 250.0), 250.0)}
+        tracker.update(k, estimate)
+        once.update(k, estimate)
+    restored = HealthTracker()
+    restored.load(json.loads(json.dumps(tracker.to_dict())))
+    for k in range(60):  # numbered from 0 again
+        estimate = {"bearing_friction": (rate * (60 + k) + rng.normal(0.0, 250.0), 250.0)}
+        renumbered, reloaded, straight = tracker.update(k, estimate), restored.update(k, estimate), once.update(60 + k, estimate)
+        assert renumbered.parameters == straight.parameters == reloaded.parameters
+    bearing = straight.parameters["bearing_friction"]
+    assert abs(bearing.slope_per_100 - 100 * rate) <= 2 * bearing.slope_std_per_100
+    assert renumbered.throw_index == 59  # reported as the source numbers it
+
 def test_a_fault_appearing_past_its_limit_is_an_alarm_after_the_two_throws_that_confirm_it():
     """The first throw far off is an outlier (one odd throw moves nothing); the second, on the same side, makes it
     a step: two throws in a row calling for `alarm`, which is what the hysteresis asks for."""
