@@ -24,6 +24,13 @@ from railswitch.schemas.history import (
     parse_time,
 )
 from railswitch.schemas.messages import (
+    SEVERITIES,
+    AckCommand,
+    Alarm,
+    Anomaly,
+    FeatureHealth,
+    MaintenanceCommand,
+    ThrowFeatures,
     CHANNEL_MODELS,
     CONTRACT_VERSION,
     DEFAULT_ENDPOINT,
@@ -105,4 +112,11 @@ __all__ = [
     "json_schema",
     "key_expr",
     "parse_key_expr",
+    "SEVERITIES",
+    "AckCommand",
+    "Alarm",
+    "Anomaly",
+    "FeatureHealth",
+    "MaintenanceCommand",
+    "ThrowFeatures",
 ]

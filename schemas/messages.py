@@ -66,6 +66,7 @@ Index = Annotated[int, Field(ge=0)]
 NonNegative = Annotated[float, Field(ge=0)]
 Profile = Annotated[list[float], Field(min_length=2, max_length=10_000)]
 Direction = Literal["left_to_right", "right_to_left"]
+MaybeNonNegative = NonNegative | None
 
 
 CONTRACT_VERSION = 1  # of every message kind; docs/contracts.md says what a new version may change
@@ -230,6 +231,31 @@ class Commissioning(Message):
     accepted: dict[FaultMode, Annotated[dict[str, float], AfterValidator(_check_fault_names)]] = {}
 
 
+class ThrowFeatures(Message):
+    """What a point-machine monitor trends of a throw (models/features.py says how each is computed from the samples,
+    the same from MCAP, CSV or the bus). Currents are magnitudes; a feature the throw's samples cannot give is null."""
+
+    throw_time_s: MaybeNonNegative = None  # motor start to end position
+    peak_current_a: MaybeNonNegative = None  # the stroke's highest current, the start-up surge left out
+    mean_current_a: MaybeNonNegative = None  # over the stroke
+    energy_j: MaybeNonNegative = None  # drawn over the throw, at the point machine's nominal supply voltage
+    lock_current_a: MaybeNonNegative = None  # mean current while the crank runs into its locking dead centre
+
+
+class Anomaly(Message):
+    """Something a throw shows that no fault mode names: a quantity of the switch's own (a nuisance) at the edge of
+    what the population allows or far from its commissioned level, or a throw no hypothesis explains."""
+
+    quantity: Annotated[str, Field(max_length=64)]  # a plant parameter name, a feature, or "residual"
+    value: float | None = None
+    commissioned: float | None = None
+    unit: Annotated[str, Field(max_length=16)] = ""
+    reason: Annotated[str, Field(min_length=1, max_length=500)]
+
+
+Tag = Literal["normal", "fault", "anomaly", "maintenance", "unknown"]
+
+
 class Diagnosis(Message):
     """The diagnoser's verdict on one throw."""
 
@@ -248,10 +274,16 @@ class Diagnosis(Message):
     # Every fault believed present, sorted (empty: nominal); each one's size; and the switch as it is without each
     # present fault this throw could see (how well a repair explains the throw). A payload without `faults` was
     # written before several faults were told apart: its `decision` was its only fault.
-    faults: list[FaultMode] | None = None
+    faults: list[FaultMode | Literal["anomaly"]] | None = None
     estimates: list[FaultEstimate] = []
     without: list[Hypothesis] = []
     signals: list[Literal["current_a", "angle_rad", "velocity_rad_s"]] = []  # what the throw's fit used
+    # The throw's features; what it shows that no fault names (each also puts "anomaly" in `faults`); and its tag as a
+    # monitor's trace list shows it (maintenance: thrown while the switch was in maintenance, kept out of baseline,
+    # trends and alarms). A payload without them was written before they were kept.
+    features: ThrowFeatures | None = None
+    anomalies: list[Anomaly] = []
+    tag: Tag | None = None
     latency_ms: NonNegative
 
     def present(self) -> list[str]:
@@ -291,7 +323,19 @@ class CommissionCommand(Message):
     accept: bool = False
 
 
-MaybeNonNegative = NonNegative | None
+class FeatureHealth(Message):
+    """One throw feature's trend in one direction against the band its switch's commissioning throws taught: the
+    latest value, the band (mean and the limits it may wander within), the slope over the recent throws and its
+    state (outside: beyond the band)."""
+
+    name: Annotated[str, Field(max_length=64)]
+    direction: Direction
+    value: float
+    mean: float
+    low: float
+    high: float
+    slope_per_100: float = 0.0
+    state: Literal["ok", "outside"] = "ok"
 
 
 class ParameterHealth(Message):
@@ -328,6 +372,7 @@ class SwitchHealth(Message):
     worst: str | None = None  # the parameter closest to its limit
     throws_to_limit: MaybeNonNegative = None  # the worst parameter's
     parameters: list[ParameterHealth] = []
+    features: list[FeatureHealth] = []  # once commissioned, each feature of the throw's direction
 
 
 MAX_RECORD_SAMPLES = 20_000  # 15 s at 1 kHz and then some; a larger record is junk
@@ -379,6 +424,62 @@ class SwitchState(Message):
     state: dict  # opaque to the contract: models/switch_diagnosis.py SwitchDiagnoser.state()
 
 
+Severity = Literal["info", "low", "medium", "high", "critical"]
+SEVERITIES: tuple[str, ...] = ("info", "low", "medium", "high", "critical")
+AlarmText = Annotated[str, Field(min_length=1, max_length=500)]
+AlarmId = Annotated[str, Field(pattern=r"^[a-z_]{1,32}(:[A-Za-z0-9_.-]{1,64}){0,2}$")]
+
+
+class Alarm(Message):
+    """A change of one of a switch's alarms (railswitch/<id>/alarm), published only when something changes: raised,
+    escalated, cleared (what caused it is gone, the alarm stays latched until acknowledged) or acknowledged (by
+    `railswitch ack`; an acknowledged alarm whose cause is gone is closed). Repeats of an active alarm's cause only
+    count and move `last_throw`. `alarm` names the cause: a fault mode, `anomaly:<quantity>` or
+    `feature:<name>:<direction>`. `sequence` numbers the switch's alarm changes."""
+
+    switch_id: SwitchId
+    alarm: AlarmId
+    change: Literal["raised", "escalated", "cleared", "acknowledged"]
+    severity: Severity
+    cause: Literal["fault", "anomaly", "feature"]
+    text: AlarmText  # what an operator reads: the cause and its size
+    parameters: dict[str, float] = {}  # the cause's figures (a fault's parameters, an anomaly's value, a feature's)
+    first_throw: Index
+    last_throw: Index
+    count: Annotated[int, Field(ge=1)]  # throws that showed it
+    active: bool  # its cause is still there
+    acknowledged: bool
+    note: Annotated[str, Field(max_length=500)] | None = None  # the acknowledgement's
+    sequence: Index
+    t_ns: TimeNs  # of the change: the throw's end, or when the acknowledgement arrived
+    model: RailModel
+
+
+class AckCommand(Message):
+    """Acknowledge a switch's alarms (`railswitch ack SW`): all of them, or the one named."""
+
+    switch_id: SwitchId
+    alarm: AlarmId | None = None
+    note: Annotated[str, Field(max_length=500)] | None = None
+
+
+class MaintenanceCommand(Message):
+    """Start or end a switch's maintenance (`railswitch maintenance SW --start/--end`). Meanwhile its throws are
+    diagnosed and recorded, tagged maintenance, and raise no alarm and teach no baseline or trend; at its end the
+    switch resumes, or with `recommission` learns its baseline again."""
+
+    switch_id: SwitchId
+    action: Literal["start", "end"]
+    recommission: bool = False
+    note: Annotated[str, Field(max_length=500)] | None = None
+
+    @model_validator(mode="after")
+    def _check_recommission(self) -> Self:
+        if self.recommission and self.action != "end":
+            raise ValueError("recommission goes with action 'end'")
+        return self
+
+
 class ServiceStatus(Message):
     """What a live service reports every few seconds on railswitch/@service/<service>/<instance>/status."""
 
@@ -402,6 +503,9 @@ CHANNEL_MODELS: dict[str, type[Message]] = {
     "health": SwitchHealth,
     "record": ThrowRecord,
     "state": SwitchState,
+    "alarm": Alarm,
+    "ack": AckCommand,
+    "maintenance": MaintenanceCommand,
 }
 
 KEY_PREFIX = "railswitch"

@@ -450,7 +450,8 @@ def test_an_older_reader_reads_a_diagnosis_of_several_faults_as_its_newest_and_c
     older, unknown = decode_counted(OlderDiagnosis, encode(SEVERAL))
     assert older.decision == "left_bolt" and older.estimate == BOLT_ESTIMATE
     assert older.commissioning.state == "commissioned"
-    assert unknown == ["commissioning.accepted", "commissioning.standing", "estimates", "faults", "without"]
+    assert unknown == ["anomalies", "commissioning.accepted", "commissioning.standing", "estimates", "faults", "features",
+                       "tag", "without"]
 
 
 def test_a_diagnosis_written_before_several_faults_reads_as_faults_unknown() -> None:
