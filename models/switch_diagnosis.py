@@ -38,6 +38,7 @@ accept it as it is (SwitchDiagnoser.accept).
 """
 from __future__ import annotations
 
+import copy
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -46,6 +47,7 @@ import numpy as np
 
 from railswitch.models.drive import DriveParams
 from railswitch.models.estimation import DRIVING_BOLT, WITHOUT, Estimate, HypothesisSpec, Measurement, ThrowEstimator
+from railswitch.models.features import FeatureTrends, throw_features
 from railswitch.models.fault_set import (
     MAGNITUDE,
     RETURN_SIGMAS,
@@ -68,7 +70,7 @@ from railswitch.models.isolation import (
     presence,
     separable,
 )
-from railswitch.models.population import credible_range, spread
+from railswitch.models.population import COPPER_PER_K, credible_range, resistance_at, spread
 from railswitch.models.reduced import NUISANCES
 from railswitch.models.reference import DIRECTIONS, Reference
 from railswitch.models.signals import MotorSignals
@@ -145,6 +147,15 @@ OBSTACLE_TOLERANCE = 10_000.0
 # How far a missing bearing's fit may go beyond the contract's range: a switch whose rollers lose twice what the
 # population's do (a standing condition) reads as about 11 000 N·s/m of bearing friction before it is accepted.
 BEARING_REACH = 1.5
+# A switch's own quantity that no fault mode names is an anomaly when the fit puts it at its credible bound (within this
+# share of the range: the population's 0.01 % tails, so a healthy switch is there one throw in thousands) or moves it
+# further than the weather can: from its commissioned level, more than the winding's temperature spans over a year
+# (-25 … +55 °C: models/population.py); from its recent level, more than a day's swing with the winding's own warming
+# (30 K). A switch thrown less often than daily may see more between two throws.
+ANOMALOUS = "motor.resistance_ohm"
+AT_BOUND = 0.005
+SEASON = resistance_at(55.0) / resistance_at(-25.0)
+DAY_SWING = COPPER_PER_K * 30.0
 BOLT_GRID = tuple(np.round(np.arange(-0.02, 0.2001, 0.02), 4))
 OBSTACLE_GRID = tuple({"obstacle_position": round(float(p), 3), "obstacle_friction": f}
                       for p in np.arange(1.02, 1.1801, 0.02) for f in (3e4, 1.5e5))
@@ -507,6 +518,9 @@ class Outcome:
     faults: tuple[str, ...] = ()
     estimates: dict[str, Combined] = field(default_factory=dict)
     standing: str | None = None  # said once: the switch cannot be commissioned as healthy, and why
+    features: dict[str, float | None] = field(default_factory=dict)  # the throw's (models/features.py)
+    feature_health: list[dict] = field(default_factory=list)  # once commissioned: FeatureTrends.update's
+    anomalies: list[dict] = field(default_factory=list)  # what no fault mode names (SwitchDiagnoser._anomalies)
 
 
 class SwitchDiagnoser:
@@ -531,11 +545,13 @@ class SwitchDiagnoser:
         # its baseline becomes if an operator accepts it as it is (Baseline.add's records)
         self.candidates: dict[str, list[dict]] = {d: [] for d in DIRECTIONS}
         self.drive = estimator.reduced.params.plant.drive
+        self.trends = FeatureTrends(self.baseline.needed)  # the throws' features, against their commissioning band
 
     # -- commissioning ------------------------------------------------------------------------
     def restart_commissioning(self) -> None:
         """After maintenance: forget the baseline, what was accepted and the switch's history; learn it again."""
         self.baseline = Baseline(self.baseline.needed)
+        self.trends.reset()
         self._forget()
 
     def _forget(self) -> None:
@@ -817,6 +833,7 @@ class SwitchDiagnoser:
             return Outcome("unknown", why, None, None, faults=tuple(sorted(self.faults)),
                            estimates=self._estimates())
         direction = throw.direction
+        features = throw_features(throw.t_s, throw.signals, throw.reference, throw.duration_s, self.drive)
         start_rail = self.rail_m if self.rail_m is not None else CLOSED_START_M[direction]
         m = measurement(throw, start_rail, self.drive)
         provisional = not self.baseline.complete
@@ -882,8 +899,57 @@ class SwitchDiagnoser:
         estimates_now = self._estimates()
         decision = self.decision()
         reason = self._reason(repaired, provisional, suspected if provisional and unchanged else [])
+        if unchanged and not self.faults and not suspected:  # a healthy throw: the band's, until it has enough
+            self.trends.learn(direction, features)
+        feature_health = [] if provisional else self.trends.update(throw.index, direction, features)
+        anomalies = [] if provisional else self._anomalies(verdict)
+        if not anomalies and shown == "nominal" and not provisional:  # the weather's level, followed
+            self.baseline.follow(ANOMALOUS, verdict.estimates["nominal"].values[ANOMALOUS])
         return Outcome(decision, reason, verdict, estimates_now.get(decision), health, tuple(sorted(self.faults)),
-                       estimates_now, standing)
+                       estimates_now, standing, features, feature_health, anomalies)
+
+    def _anomalies(self, verdict: ThrowVerdict) -> list[dict]:
+        """What the commissioned switch as it is fitted shows that no fault mode names: its winding resistance at the
+        edge of the population's range, or beyond the weather from its commissioned or recent level (ANOMALOUS). The
+        drive's other quantities read through it: a weaker torque constant needs more current for the same torque
+        and gives less back-EMF, which the fit reads as a higher resistance; a supply sag that saturates the drive
+        limits the current, which it reads as a lower one. Each anomaly names what may have changed."""
+        value = float(verdict.estimates["nominal"].values[ANOMALOUS])
+        levels = [self.baseline.level(d, ANOMALOUS)[0] for d in DIRECTIONS]
+        commissioned = float(np.mean(levels)) if all(np.isfinite(levels)) else None  # a state from before it was kept
+        recent = self.baseline.recent.get(ANOMALOUS, commissioned)
+        low, high = self.prior.bounds[ANOMALOUS]
+        edge = AT_BOUND * (high - low)
+        since = "" if commissioned is None else f", commissioned at {commissioned:.2f} Ω"
+        why = None
+        if value >= high - edge:
+            why = f"at the highest the population allows ({high:.2f} Ω){since}"
+        elif value <= low + edge:
+            why = f"at the lowest the population allows ({low:.2f} Ω){since}"
+        elif commissioned is not None and not 1.0 / SEASON <= value / commissioned <= SEASON:
+            why = f"{100.0 * (value / commissioned - 1.0):+.0f} % from its commissioned {commissioned:.2f} Ω, more than a year's weather"
+        elif recent is not None and abs(value / recent - 1.0) > DAY_SWING:
+            why = f"{100.0 * (value / recent - 1.0):+.0f} % from its recent {recent:.2f} Ω in one throw, more than a day's weather"
+        if why is None:
+            return []
+        high_side = value > (recent if recent is not None else 0.5 * (low + high))
+        suspects = (["motor.resistance_ohm", "motor.torque_constant_nm_a"] if high_side
+                    else ["motor.supply_v", "motor.resistance_ohm"])
+        cause = ("a cable or winding fault, or weakened magnets (a lower torque constant reads as a higher resistance)?"
+                 if high_side else "a supply sag that saturates the drive, or a shorted winding?")
+        return [{"quantity": ANOMALOUS, "value": value, "commissioned": commissioned, "unit": "Ω",
+                 "reason": f"winding resistance {value:.2f} Ω {why}: {cause}", "suspects": suspects}]
+
+    def diagnose_aside(self, throw: ThrowInput) -> Outcome:
+        """A throw's outcome that leaves the switch as it was (maintenance: the team's throws teach no baseline, trend or
+        fault); only where the blades were left is kept, the next throw starts there."""
+        kept = copy.deepcopy(self.state())
+        aside = (self.latest.copy(), {m: list(e) for m, e in self.evidence.items()}, self.undecided, dict(self._unchanged))
+        try:
+            return self.diagnose(throw)
+        finally:
+            self.resume(kept)
+            self.latest, self.evidence, self.undecided, self._unchanged = aside
 
     def _commissioning_record(self, direction: str, estimates: dict[str, Estimate]) -> dict:
         """What a throw that showed nothing new teaches of the switch as it is: its baselined levels as the switch as it
@@ -893,7 +959,7 @@ class SwitchDiagnoser:
         values = base.values
         levels = {"bearing_friction": values["bearing_friction"],
                   "motor.coulomb_friction_nm": values["motor.coulomb_friction_nm"] + values["drive_friction_nm"],
-                  DRIFTING: values[DRIFTING]}
+                  DRIFTING: values[DRIFTING], ANOMALOUS: values[ANOMALOUS]}
         gains = {**self.prior.gains.get(direction, {}), **healthy_gains(estimates)}
         return {"levels": levels, "gains": gains, "model_weight": base.mse / base.effective_samples}
 
@@ -1209,7 +1275,7 @@ class SwitchDiagnoser:
         baseline, its present faults and its health over the throws so far."""
         return {"baseline": self.baseline.to_dict(), "health": self.health.to_dict(),
                 "faults": [fault.to_dict() for fault in self.faults.values()], "standing": self.standing,
-                "candidates": self.candidates}
+                "candidates": self.candidates, "features": self.trends.to_dict()}
 
     def resume(self, state: dict) -> None:
         self.baseline = Baseline.from_dict(state["baseline"])
@@ -1218,3 +1284,5 @@ class SwitchDiagnoser:
         self.faults = {f["mode"]: Fault.from_dict(f, TRACKED_THROWS) for f in state.get("faults", [])}
         self.standing = state.get("standing")
         self.candidates = {d: list(state.get("candidates", {}).get(d, [])) for d in DIRECTIONS}
+        self.trends = FeatureTrends(self.baseline.needed)
+        self.trends.load(state.get("features", {}))  # a state saved before features were trended has none

@@ -251,6 +251,7 @@ class Anomaly(Message):
     commissioned: float | None = None
     unit: Annotated[str, Field(max_length=16)] = ""
     reason: Annotated[str, Field(min_length=1, max_length=500)]
+    suspects: list[Annotated[str, Field(max_length=64)]] = []  # plant parameters whose change reads like this
 
 
 Tag = Literal["normal", "fault", "anomaly", "maintenance", "unknown"]

@@ -21,13 +21,15 @@ class PlantParameter:
 PLANT_PARAMETERS: dict[str, PlantParameter] = {
     p.name: p
     for p in (
-        PlantParameter("motor.resistance_ohm", "Ω", 9.5, 6.0, 14.0,
-                       "winding resistance at the winding's temperature (copper: +0.393 % per kelvin)"),
-        PlantParameter("motor.supply_v", "V", 110.0, 80.0, 140.0, "supply voltage at the point machine"),
+        PlantParameter("motor.resistance_ohm", "Ω", 9.5, 6.0, 24.0,
+                       "winding resistance at the winding's temperature (copper: +0.393 % per kelvin), with its cable;"
+                       " up to twice the hottest healthy winding's: a cable or winding fault"),
+        PlantParameter("motor.supply_v", "V", 110.0, 40.0, 140.0,
+                       "supply voltage at the point machine (down to a sag that saturates the drive)"),
         PlantParameter("motor.coulomb_friction_nm", "N·m", 0.12, 0.04, 0.40,
                        "Coulomb friction of motor and gearbox, at the motor shaft"),
-        PlantParameter("motor.torque_constant_nm_a", "N·m/A", 0.2, 0.16, 0.24,
-                       "torque constant (and back-EMF constant, in SI units the same)"),
+        PlantParameter("motor.torque_constant_nm_a", "N·m/A", 0.2, 0.12, 0.24,
+                       "torque constant (and back-EMF constant, in SI units the same); down to weakened magnets"),
         PlantParameter("rail.chair_friction_coefficient", "1", 0.02, 0.002, 0.15,
                        "slide-chair Coulomb friction coefficient: lubrication, dryness, ice"),
         PlantParameter("rail.chair_viscous_n_s_m", "N·s/m", 300.0, 100.0, 900.0, "rolling losses of each slide chair"),

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from railswitch.models.alarms import AlarmBook, Change, Condition
 from railswitch.models.estimation import MODEL_RATE_HZ, WITHOUT, ThrowEstimator
 from railswitch.models.reduced import BearingPort, ReducedParams, ReducedSwitch, port_pairs
 from railswitch.models.reference import Reference
@@ -29,8 +30,14 @@ from railswitch.models.switch_diagnosis import (
 )
 from railswitch.models.health import Health
 from railswitch.schemas import (
+    FAULT_PARAMETERS,
+    MODE_PARAMETERS,
     RAIL_MODELS,
+    Alarm,
+    Anomaly,
     Commissioning,
+    FeatureHealth,
+    ThrowFeatures,
     Diagnosis,
     FaultEstimate,
     Hypothesis,
@@ -54,6 +61,7 @@ class DiagnosedThrow:
     diagnosis: Diagnosis
     verdict: ThrowVerdict | None
     health: SwitchHealth | None = None
+    alarms: tuple[Alarm, ...] = ()  # the changes of the switch's alarms this throw made
 
 
 @dataclass
@@ -68,6 +76,8 @@ class Diagnoser:
     switches: dict[str, SwitchDiagnoser] = field(default_factory=dict)
     # per switch: (throw index, end ns) of the latest throw its state has seen, kept in the state as `last_throw`
     last_throws: dict[str, tuple[int, int]] = field(default_factory=dict)
+    books: dict[str, AlarmBook] = field(default_factory=dict)  # per switch: its open alarms, kept in its state
+    maintenance: dict[str, dict] = field(default_factory=dict)  # switches in maintenance: since when, why
 
     def __post_init__(self) -> None:
         if self.model not in RAIL_MODELS:
@@ -113,6 +123,9 @@ class Diagnoser:
                 switch.resume(stored)
                 if "last_throw" in stored:  # a state saved before it was kept has none
                     self.last_throws[switch_id] = (int(stored["last_throw"][0]), int(stored["last_throw"][1]))
+            self.books[switch_id] = AlarmBook.from_dict(stored.get("alarms") if stored else None)
+            if stored is not None and stored.get("maintenance"):
+                self.maintenance[switch_id] = dict(stored["maintenance"])
             self.switches[switch_id] = switch
         return self.switches[switch_id]
 
@@ -120,6 +133,8 @@ class Diagnoser:
         """Drop a switch held here; its next throw resumes it from its latest stored state."""
         self.switches.pop(switch_id, None)
         self.last_throws.pop(switch_id, None)
+        self.books.pop(switch_id, None)
+        self.maintenance.pop(switch_id, None)
 
     def commission(self, switch_id: str, accept: bool = False) -> dict[str, dict[str, float]]:
         """Restart a switch's commissioning (after maintenance), or with `accept` take the switch as it now is as its
@@ -134,26 +149,106 @@ class Diagnoser:
 
     def _state(self, switch_id: str, switch: SwitchDiagnoser) -> dict:
         last = self.last_throws.get(switch_id)
-        return switch.state() if last is None else {**switch.state(), "last_throw": list(last)}
+        state = {**switch.state(), "alarms": self.books[switch_id].to_dict()}
+        if switch_id in self.maintenance:
+            state["maintenance"] = self.maintenance[switch_id]
+        return state if last is None else {**state, "last_throw": list(last)}
+
+    def _saved(self, switch_id: str) -> None:
+        if self.on_state is not None:
+            self.on_state(switch_id, self._state(switch_id, self.switches[switch_id]))
+
+    def acknowledge(self, switch_id: str, t_ns: int, alarm: str | None = None, note: str | None = None) -> list[Alarm]:
+        """Acknowledge a switch's alarms (all, or the one named); the changes, none when there was nothing to
+        acknowledge."""
+        self.switch(switch_id)
+        changes = self.books[switch_id].acknowledge(t_ns, alarm, note)
+        if changes:
+            self._saved(switch_id)
+        return [alarm_message(self.model, switch_id, change) for change in changes]
+
+    def set_maintenance(self, switch_id: str, start: bool, t_ns: int, recommission: bool = False,
+                        note: str | None = None) -> bool:
+        """Start or end a switch's maintenance (at its end, optionally learning its baseline again); False when it was
+        already so (a repeated command changes nothing)."""
+        switch = self.switch(switch_id)
+        if start == (switch_id in self.maintenance):
+            return False
+        if start:
+            self.maintenance[switch_id] = {"since_ns": t_ns, "note": note}
+        else:
+            del self.maintenance[switch_id]
+            if recommission:
+                switch.restart_commissioning()
+        self._saved(switch_id)
+        return True
 
     def diagnose(self, throw: CutThrow) -> DiagnosedThrow:
-        """The Diagnosis of one throw; latency_ms is this call's wall time."""
+        """The Diagnosis of one throw, with the alarm changes it made; latency_ms is this call's wall time. A switch in
+        maintenance is diagnosed aside: its throw is tagged, raises no alarm and teaches nothing."""
         start = time.perf_counter()
-        switch = self.switch(throw.switch_id)
-        outcome = switch.diagnose(throw_input(throw))
+        switch_id = throw.switch_id
+        switch = self.switch(switch_id)
+        maintenance = switch_id in self.maintenance
+        outcome = (switch.diagnose_aside if maintenance else switch.diagnose)(throw_input(throw))
         if outcome.standing is not None:
-            log.warning("%s %s", throw.switch_id, outcome.standing)
+            log.warning("%s %s", switch_id, outcome.standing)
         end_ns = throw_end_ns(throw)
-        self.last_throws[throw.switch_id] = (throw.start.throw_index, end_ns)
-        if self.on_state is not None:
-            self.on_state(throw.switch_id, self._state(throw.switch_id, switch))
-        diagnosis = diagnosis_message(self.model, throw, switch, outcome, (time.perf_counter() - start) * 1e3, end_ns)
-        health = None if outcome.health is None else health_message(self.model, throw, outcome.health, end_ns)
-        return DiagnosedThrow(throw, diagnosis, outcome.verdict, health)
+        changes = []
+        if not maintenance and outcome.verdict is not None:
+            conditions, judged = alarm_conditions(switch_id, outcome, throw.start.direction, self.books[switch_id])
+            changes = self.books[switch_id].observe(throw.start.throw_index, end_ns, conditions, judged)
+        self.last_throws[switch_id] = (throw.start.throw_index, end_ns)
+        self._saved(switch_id)
+        diagnosis = diagnosis_message(self.model, throw, switch, outcome, (time.perf_counter() - start) * 1e3, end_ns,
+                                      maintenance)
+        health = None if outcome.health is None else health_message(self.model, throw, outcome.health, end_ns,
+                                                                       outcome.feature_health)
+        alarms = tuple(alarm_message(self.model, switch_id, change) for change in changes)
+        return DiagnosedThrow(throw, diagnosis, outcome.verdict, health, alarms)
 
 
-def health_message(model: str, throw: CutThrow, health: Health, end_ns: int) -> SwitchHealth:
-    """The SwitchHealth of a switch after a throw (parameters never seen yet are left out)."""
+def alarm_conditions(switch_id: str, outcome: Outcome, direction: str, book: AlarmBook
+                     ) -> tuple[dict[str, Condition], set[str]]:
+    """What a throw's outcome raises alarms for, by alarm id, and the open alarms it judged: each present fault (its
+    severity from its health: medium, high when watched, critical at its alarm; low while the switch is provisional),
+    each anomaly (high) and each feature of this direction outside its band (low)."""
+    conditions = {}
+    states = {} if outcome.health is None else {name: p.state for name, p in outcome.health.parameters.items()}
+    provisional = outcome.verdict is not None and outcome.verdict.provisional
+    for mode in outcome.faults:
+        names = MODE_PARAMETERS[mode]
+        worst = max((states.get(name, "ok") for name in names), key=("ok", "watch", "alarm").index)
+        severity = "low" if provisional else {"ok": "medium", "watch": "high", "alarm": "critical"}[worst]
+        estimate = outcome.estimates.get(mode)
+        params = dict(estimate.params) if estimate is not None else {}
+        sizes = ", ".join(f"{name} {value:.4g} {FAULT_PARAMETERS[name].unit}" for name, value in params.items())
+        conditions[mode] = Condition("fault", severity, f"{mode}{': ' + sizes if sizes else ''}", params)
+    for anomaly in outcome.anomalies:
+        value = anomaly["value"]
+        conditions[f"anomaly:{anomaly['quantity']}"] = Condition(
+            "anomaly", "high", anomaly["reason"], {anomaly["quantity"]: value} if value is not None else {})
+    for feature in outcome.feature_health:
+        if feature["state"] == "outside":
+            conditions[f"feature:{feature['name']}:{direction}"] = Condition(
+                "feature", "low", f"{feature['name']} {feature['value']:.4g} {direction.replace('_', ' ')}, outside "
+                f"its commissioned band {feature['low']:.4g} … {feature['high']:.4g}", {feature["name"]: feature["value"]})
+    other = "right_to_left" if direction == "left_to_right" else "left_to_right"
+    judged = {alarm for alarm in book.alarms if not alarm.endswith(f":{other}")}
+    return conditions, judged
+
+
+def alarm_message(model: str, switch_id: str, change: Change) -> Alarm:
+    state = change.alarm
+    return Alarm(switch_id=switch_id, alarm=state.alarm, change=change.change, severity=state.severity,
+                 cause=state.cause, text=state.text[:500], parameters=state.parameters, first_throw=state.first_throw,
+                 last_throw=state.last_throw, count=state.count, active=state.active, acknowledged=state.acknowledged,
+                 note=state.note, sequence=change.sequence, t_ns=change.t_ns, model=model)
+
+
+def health_message(model: str, throw: CutThrow, health: Health, end_ns: int, features: list[dict] = ()) -> SwitchHealth:
+    """The SwitchHealth of a switch after a throw (parameters never seen yet are left out), with its features' trends
+    in the throw's direction."""
     def finite(value):
         return None if value is None or not np.isfinite(value) else float(value)
 
@@ -165,12 +260,13 @@ def health_message(model: str, throw: CutThrow, health: Health, end_ns: int) -> 
     worst = health.parameters.get(health.worst) if health.worst else None
     return SwitchHealth(switch_id=throw.switch_id, throw_index=throw.start.throw_index, t_ns=end_ns, model=model,
                         state=health.state, worst=health.worst,
-                        throws_to_limit=finite(worst.throws_to_limit) if worst else None, parameters=parameters)
+                        throws_to_limit=finite(worst.throws_to_limit) if worst else None, parameters=parameters,
+                        features=[FeatureHealth(**feature) for feature in features])
 
 
 def diagnosis_message(model: str, throw: CutThrow, switch: SwitchDiagnoser, outcome: Outcome, latency_ms: float,
-                      end_ns: int) -> Diagnosis:
-    """The Diagnosis of a throw's outcome (docs/contracts.md section 3)."""
+                      end_ns: int, maintenance: bool = False) -> Diagnosis:
+    """The Diagnosis of a throw's outcome (docs/contracts.md section 3), tagged as a monitor's trace list shows it."""
     hypotheses, without, joint = [], [], None
     verdict = outcome.verdict
     if verdict is not None:
@@ -191,12 +287,18 @@ def diagnosis_message(model: str, throw: CutThrow, switch: SwitchDiagnoser, outc
                                   needed=baseline.needed, outside_population=switch.outside_population(),
                                   standing=switch.standing if not baseline.complete else None,
                                   accepted=baseline.accepted)
+    anomalies = [Anomaly(**anomaly) for anomaly in outcome.anomalies]
+    faults = sorted([*outcome.faults, *(["anomaly"] if anomalies else [])])
+    tag = ("maintenance" if maintenance else "unknown" if outcome.decision == "unknown" else
+           "anomaly" if anomalies else "fault" if outcome.faults else "normal")
     return Diagnosis(switch_id=throw.switch_id, throw_index=throw.start.throw_index, direction=throw.start.direction,
                      t_start_ns=throw.start.t_ns, t_end_ns=end_ns, model=model, decision=outcome.decision,
                      reason=outcome.reason, hypotheses=hypotheses, joint=joint,
                      estimate=estimates.get(outcome.decision), commissioning=commissioning, latency_ms=latency_ms,
                      signals=list(throw.signals.names) if verdict is not None else [],
-                     faults=list(outcome.faults), estimates=list(estimates.values()), without=without)
+                     faults=faults, estimates=list(estimates.values()), without=without,
+                     features=ThrowFeatures(**outcome.features) if outcome.features else None, anomalies=anomalies,
+                     tag=tag)
 
 
 def throw_end_ns(throw: CutThrow) -> int:

@@ -1,0 +1,138 @@
+"""A throw's features as point-machine monitors trend them, and their trend against a band learnt at commissioning.
+
+Computed from what every source gives alike (the samples from the start event, the reference profile and the
+throw's duration), so a throw read from MCAP, CSV or the bus has the same features:
+
+- throw time: from the start event (the motor starts) to the end position, where the motor stops (the last sample
+  turning faster than STILL_SHARE of the reference's top speed); a unit that logs the current alone gives the
+  end event, when the point machine detected its end position;
+- the stroke: while the reference asks for its top speed, from SETTLE_S after it first does (the speed loop's
+  overshoot, in which the current swings through zero, ends the start-up surge) to when it starts slowing down;
+- peak and mean current: the highest and the mean magnitude of the current over the stroke;
+- energy: the current's magnitude integrated over the throw, times the supply's nominal voltage (what a monitor
+  that logs the current alone reports; the supply's own voltage is not measured);
+- lock current: the mean magnitude over the stroke's part in which the crank runs into its dead centre, where the
+  end-position hook latches (models/lock.py: the last end_zone of rod travel, by the reference's angle).
+
+A feature the throw cannot give (no stroke at top speed, no sample in the lock zone) is None.
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from railswitch.models.drive import DriveParams
+from railswitch.models.lock import LockParams
+from railswitch.models.reference import DIRECTIONS, Reference
+from railswitch.models.signals import MotorSignals
+from railswitch.schemas.plant import PLANT_PARAMETERS
+
+FEATURES = ("throw_time_s", "peak_current_a", "mean_current_a", "energy_j", "lock_current_a")
+TOP_SHARE = 0.95  # of the reference's top speed: the stroke
+STILL_SHARE = 0.1  # of the reference's top speed: the motor has stopped (models/switch_diagnosis.py cut_short alike)
+SETTLE_S = 0.1  # after the reference first reaches its top speed: the start-up surge and the speed loop's overshoot
+SUPPLY_V = PLANT_PARAMETERS["motor.supply_v"].nominal
+# The band a commissioned switch's feature may wander within: BAND_SIGMAS of its spread over the commissioning throws,
+# at least BAND_FLOOR of its level (the weather moves a healthy switch's currents: chairs a fifth drier, a cold night)
+BAND_SIGMAS = 4.0
+BAND_FLOOR = 0.1
+RECENT_THROWS = 20  # per direction: what a feature's slope is fitted over
+
+
+def throw_features(t_s: np.ndarray, signals: MotorSignals, reference: Reference, duration_s: float | None,
+                   drive: DriveParams = DriveParams(), lock: LockParams = LockParams()) -> dict[str, float | None]:
+    """The features of one throw (module docstring), by name with its unit."""
+    current = np.abs(np.asarray(signals.current_a, dtype=float))
+    top = float(np.max(np.abs(reference.velocity_rad_s)))
+    out: dict[str, float | None] = dict.fromkeys(FEATURES)
+    if len(t_s) < 2 or top <= 0.0:
+        return out
+    out["throw_time_s"] = _throw_time(t_s, signals, top, duration_s)
+    out["energy_j"] = float(SUPPLY_V * np.trapezoid(current, t_s))
+    commanded = np.abs(reference(t_s))
+    fast = np.flatnonzero(np.abs(reference.velocity_rad_s) >= TOP_SHARE * top)
+    first_top = float(reference.t_s[fast[0]])
+    stroke = (commanded >= TOP_SHARE * top) & (t_s >= first_top + SETTLE_S)
+    stroke &= t_s <= float(reference.t_s[fast[-1]])  # before it slows down
+    if np.count_nonzero(stroke) >= 2:
+        out["peak_current_a"] = float(np.max(current[stroke]))
+        out["mean_current_a"] = float(np.mean(current[stroke]))
+    # the reference's motor angle at each sample, against the angle at which the crank enters its lock zone
+    angle = np.concatenate([[0.0], np.cumsum(0.5 * (commanded[1:] + commanded[:-1]) * np.diff(t_s))])
+    entry = drive.gear_ratio * math.acos(lock.end_zone_m / drive.crank_radius_m - 1.0)
+    locking = stroke & (angle >= entry)
+    if np.count_nonzero(locking) >= 2:
+        out["lock_current_a"] = float(np.mean(current[locking]))
+    return out
+
+
+def _throw_time(t_s: np.ndarray, signals: MotorSignals, top: float, duration_s: float | None) -> float | None:
+    velocity = signals.velocity_rad_s
+    if velocity is None:
+        return duration_s
+    turning = np.flatnonzero(np.abs(velocity) > STILL_SHARE * top)
+    return float(t_s[turning[-1]]) if len(turning) else duration_s
+
+
+@dataclass
+class FeatureTrends:
+    """A switch's features per direction: the commissioning throws' values (its band) and its recent ones."""
+
+    needed: int
+    learnt: dict[str, list[dict[str, float]]] = field(default_factory=lambda: {d: [] for d in DIRECTIONS})
+    recent: dict[str, deque] = field(default_factory=lambda: {d: deque(maxlen=RECENT_THROWS) for d in DIRECTIONS})
+
+    def learn(self, direction: str, features: dict[str, float | None]) -> None:
+        """A healthy commissioning throw's features join its direction's band."""
+        if len(self.learnt[direction]) < self.needed:
+            self.learnt[direction].append({n: v for n, v in features.items() if v is not None})
+
+    def band(self, direction: str, name: str) -> tuple[float, float, float] | None:
+        """(mean, low, high) a feature of a direction may wander within, or None before it was learnt."""
+        values = np.array([f[name] for f in self.learnt[direction] if name in f])
+        if len(values) < 2:
+            return None
+        mean = float(values.mean())
+        half = max(BAND_SIGMAS * float(values.std(ddof=1)), BAND_FLOOR * abs(mean))
+        return mean, mean - half, mean + half
+
+    def update(self, index: int, direction: str, features: dict[str, float | None]) -> list[dict]:
+        """A throw of the commissioned switch: each feature's value, band, slope over the recent throws (per 100
+        throws of the switch) and state, for the features its band knows."""
+        self.recent[direction].append((index, {n: v for n, v in features.items() if v is not None}))
+        out = []
+        for name in FEATURES:
+            band, value = self.band(direction, name), features.get(name)
+            if band is None or value is None:
+                continue
+            mean, low, high = band
+            out.append({"name": name, "direction": direction, "value": value, "mean": mean, "low": low, "high": high,
+                        "slope_per_100": self._slope(direction, name),
+                        "state": "ok" if low <= value <= high else "outside"})
+        return out
+
+    def _slope(self, direction: str, name: str) -> float:
+        points = [(i, f[name]) for i, f in self.recent[direction] if name in f]
+        if len(points) < 3:
+            return 0.0
+        x, y = np.array(points, dtype=float).T
+        if np.ptp(x) == 0.0:
+            return 0.0
+        return float(100.0 * np.polyfit(x, y, 1)[0])
+
+    def reset(self) -> None:
+        self.learnt = {d: [] for d in DIRECTIONS}
+        self.recent = {d: deque(maxlen=RECENT_THROWS) for d in DIRECTIONS}
+
+    def to_dict(self) -> dict:
+        return {"learnt": self.learnt, "recent": {d: [list(p) for p in self.recent[d]] for d in DIRECTIONS}}
+
+    def load(self, data: dict) -> None:
+        self.reset()
+        for direction in DIRECTIONS:
+            self.learnt[direction] = [dict(f) for f in data.get("learnt", {}).get(direction, [])][:self.needed]
+            for index, values in data.get("recent", {}).get(direction, []):
+                self.recent[direction].append((int(index), dict(values)))
