@@ -26,6 +26,8 @@ COMMANDS: dict[str, str] = {  # name (and module) -> help
     "replay": "republish a recording's motor, throw and truth messages",
     "watch": "live table of diagnoses and health",
     "commission": "restart a switch's commissioning after maintenance (its baseline is learnt again), or --accept it as it is",
+    "ack": "acknowledge a switch's alarms (all, or --alarm ID), with an optional --note",
+    "maintenance": "--start or --end a switch's maintenance: its throws raise no alarm and teach nothing meanwhile",
     "historian": "keep every diagnosis and health message in an SQLite file and answer history queries",
     "history": "a switch's diagnoses and health over time, from the historians on the bus or a history file",
     "demo": "router, simulator, diagnoser, recorder and historian with a live table and summary",

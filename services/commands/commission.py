@@ -12,26 +12,32 @@ import argparse
 import threading
 import time
 
-from railswitch.schemas import CommissionCommand, key_expr
+from railswitch.schemas import CHANNEL_MODELS, CommissionCommand, Message, key_expr
 from railswitch.services.adapters.zenoh_bus import BusOptions, Publishers, open_session
 from railswitch.services.commands.options import add_service_arguments, run_service, switch_id
 
 SETTLE_S = 0.5  # lets the publication leave before the session closes
 
 
-def send_commission(options: BusOptions, switches: list[str], reason: str | None, stop: threading.Event,
-                    accept: bool = False) -> int:
+def send_commands(options: BusOptions, commands: list[Message], stop: threading.Event) -> int:
+    """Publish each command on its switch's channel of its kind (railswitch/<SW>/commission, ack, maintenance)."""
+    kinds = {type_: kind for kind, type_ in CHANNEL_MODELS.items()}
     session = open_session(options, stop=stop, wait_s=30.0)
     try:
         publishers = Publishers(session)
         time.sleep(SETTLE_S)  # subscribers' routes are in place
-        for switch in switches:
-            publishers.put(key_expr(switch, "commission"),
-                           CommissionCommand(switch_id=switch, reason=reason, accept=accept))
+        for command in commands:
+            publishers.put(key_expr(command.switch_id, kinds[type(command)]), command)
         time.sleep(SETTLE_S)
         return publishers.published
     finally:
         session.close()
+
+
+def send_commission(options: BusOptions, switches: list[str], reason: str | None, stop: threading.Event,
+                    accept: bool = False) -> int:
+    return send_commands(options, [CommissionCommand(switch_id=s, reason=reason, accept=accept) for s in switches],
+                         stop)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

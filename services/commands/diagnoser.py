@@ -45,6 +45,7 @@ STATE_QUERY_S = 5.0  # how long a starting diagnoser waits for the others' switc
 STATE_KEY = "railswitch/*/state"
 INPUT_KEYS = ["railswitch/*/*"]
 CATCH_UP = ("record",)  # throws a diagnoser that was down asks the publishers' caches for (docs/contracts.md)
+KEPT_ALARM_CHANGES = 32  # each switch's latest alarm changes kept for notifiers and historians that were down
 KEPT_THROWS = 4  # each switch's latest diagnoses and health kept for historians that were down: 10 minutes at 500 a day
 
 
@@ -75,7 +76,8 @@ def run_diagnoser(options: BusOptions, *, model: str, shard: tuple[int, int] | N
     """Diagnose until stop is set (elastic without a shard); returns the number of diagnoses published."""
     session = open_session(dataclasses.replace(options, lease_ms=ELASTIC_LEASE_MS), stop=stop)
     try:
-        publishers = Publishers(session, cached={"diagnosis": kept_throws, "health": kept_throws})
+        publishers = Publishers(session, cached={"diagnosis": kept_throws, "health": kept_throws,
+                                                 "alarm": KEPT_ALARM_CHANGES})
         # One subscription keeps samples and events in order. A fixed shard queues what arrives while its model
         # warms up; an elastic diagnoser subscribes once ready, since the live ones serve everything until it joins.
         inbox = Inbox(session, INPUT_KEYS, CATCH_UP) if shard is not None else None

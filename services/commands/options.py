@@ -11,6 +11,8 @@ import os
 import sys
 from collections.abc import Callable
 
+from pydantic import TypeAdapter, ValidationError
+
 from railswitch.schemas import DEFAULT_ENDPOINT, RAIL_MODELS, check_fault_value, check_plant_value, check_switch_id
 
 MODES = ("client", "peer", "router")  # Zenoh's session modes
@@ -101,6 +103,25 @@ def scenario_from_args(args: argparse.Namespace, default_throws: int = 1_000_000
     return Scenario(interval_s=getattr(args, "interval", None) or 10.0, rate_hz=args.rate or 50.0,
                     noise=args.noise or 0.0, seed=args.seed, switches=plans, stroke_s=args.stroke or STROKE_S,
                     throw_s=args.throw_length)
+
+
+def checked(annotated, accepted: str) -> Callable[[str], str]:
+    """Converter for a string a schema's annotated type checks; the error names the value and what is accepted."""
+    adapter = TypeAdapter(annotated)
+
+    def convert(text: str) -> str:
+        try:
+            return adapter.validate_python(text)
+        except ValidationError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {accepted}") from None
+    return convert
+
+
+def note(text: str) -> str:
+    """A note or reason kept with a command: at most 500 characters."""
+    if len(text) > 500:
+        raise argparse.ArgumentTypeError(f"a note of {len(text)} characters is over the accepted 500")
+    return text
 
 
 def switch_id(text: str) -> str:

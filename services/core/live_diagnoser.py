@@ -15,7 +15,9 @@ from collections import Counter
 from collections.abc import Callable
 
 from railswitch.schemas import (
+    AckCommand,
     CommissionCommand,
+    MaintenanceCommand,
     Diagnosis,
     Message,
     SwitchState,
@@ -33,11 +35,12 @@ from railswitch.services.core.throw_cutter import CutThrow, ThrowCutter
 
 log = logging.getLogger("railswitch.diagnoser")
 
-INPUT_KINDS = ("motor", "throw", "record", "commission", "diagnosis", "state")
+INPUT_KINDS = ("motor", "throw", "record", "commission", "ack", "maintenance", "diagnosis", "state")
 EXPIRE_EVERY_S = 1.0
 # in every status, zeros too; `already_diagnosed`: throws a switch's state had seen (a cache's replay after a restart),
 # `missed`: throws lost for good (older than the publishers' caches when this diagnoser came back), by index gaps
-COUNTERS = ("diagnosed", "taken_over", "held_expired", "failed", "commissions", "already_diagnosed", "missed")
+COUNTERS = ("diagnosed", "taken_over", "held_expired", "failed", "commissions", "already_diagnosed", "missed",
+            "alarm_changes", "acknowledged", "maintenance")
 
 
 class LiveDiagnoser:
@@ -86,6 +89,10 @@ class LiveDiagnoser:
             self._state_seen(message)
         elif isinstance(message, CommissionCommand):
             self._commission(message, item.key)
+        elif isinstance(message, AckCommand):
+            self._acknowledge(message, item.key)
+        elif isinstance(message, MaintenanceCommand):
+            self._maintenance(message, item.key)
         elif isinstance(message, ThrowRecord):
             self._seen.add(message.switch_id)
             self._completed(throw_of_record(message), item.arrived_s, item.arrived_s)
@@ -134,6 +141,7 @@ class LiveDiagnoser:
         self._put(key_expr(throw.switch_id, "diagnosis"), diagnosis)
         if diagnosed.health is not None:
             self._put(key_expr(throw.switch_id, "health"), diagnosed.health)
+        self._alarms(diagnosed.alarms)
         self._latest[throw.switch_id] = (diagnosis.throw_index, diagnosis.t_end_ns)
         self._publish_state(throw.switch_id, diagnosis.throw_index, diagnosis.t_end_ns)
         self.counts["diagnosed"] += 1
@@ -218,18 +226,61 @@ class LiveDiagnoser:
         if state.switch_id in self.diagnoser.switches and (latest is None or state.t_ns > latest[1]):
             self.diagnoser.forget(state.switch_id)
 
-    def _commission(self, command: CommissionCommand, key: str) -> None:
-        switch_id = command.switch_id
+    def _alarms(self, alarms) -> None:
+        for alarm in alarms:
+            self._put(key_expr(alarm.switch_id, "alarm"), alarm)
+            self.counts["alarm_changes"] += 1
+            log.info("%s alarm %s %s (%s): %s", alarm.switch_id, alarm.alarm, alarm.change, alarm.severity, alarm.text)
+
+    def _commanded(self, switch_id: str, kind: str, key: str) -> bool:
+        """Whether this one carries out a command for the switch: it owns it and knows it (a command for a switch
+        neither seen nor stored is refused, counted as `<kind>: unknown switch`)."""
         if not self.ownership.is_mine(switch_id):
-            return  # its owner does it
+            return False  # its owner does it
         if not (switch_id in self.diagnoser.switches or switch_id in self.states or self.known(switch_id)):
-            self.intake.reject("commission: unknown switch", key)
-            return
-        accepted = self.diagnoser.commission(switch_id, accept=command.accept)
+            self.intake.reject(f"{kind}: unknown switch", key)
+            return False
+        return True
+
+    def _publish_after_command(self, switch_id: str) -> None:
+        """The switch's state after a command, on the bus as following its latest throw."""
         cached = self.states.get(switch_id)  # a switch resumed from the bus: its latest throw is the cached state's
         after = max([self._latest.get(switch_id, (0, 0)), (cached.throw_index, cached.t_ns) if cached else (0, 0)],
                     key=lambda throw: throw[1])
         self._publish_state(switch_id, *after)
+
+    def _acknowledge(self, command: AckCommand, key: str) -> None:
+        switch_id = command.switch_id
+        if not self._commanded(switch_id, "ack", key):
+            return
+        alarms = self.diagnoser.acknowledge(switch_id, time.time_ns(), command.alarm, command.note)
+        if not alarms:
+            self.intake.reject("ack: no such unacknowledged alarm", key)
+            return
+        self._alarms(alarms)
+        self._publish_after_command(switch_id)
+        self.counts["acknowledged"] += len(alarms)
+
+    def _maintenance(self, command: MaintenanceCommand, key: str) -> None:
+        switch_id = command.switch_id
+        if not self._commanded(switch_id, "maintenance", key):
+            return
+        start = command.action == "start"
+        if not self.diagnoser.set_maintenance(switch_id, start, time.time_ns(), command.recommission, command.note):
+            self.intake.reject(f"maintenance: already {'in' if start else 'out of'} maintenance", key)
+            return
+        self._publish_after_command(switch_id)
+        self.counts["maintenance"] += 1
+        why = f" ({command.note})" if command.note else ""
+        log.info("%s: maintenance %s%s%s", switch_id, "started" if start else "ended",
+                 ", commissioning restarted" if command.recommission else "", why)
+
+    def _commission(self, command: CommissionCommand, key: str) -> None:
+        switch_id = command.switch_id
+        if not self._commanded(switch_id, "commission", key):
+            return
+        accepted = self.diagnoser.commission(switch_id, accept=command.accept)
+        self._publish_after_command(switch_id)
         self.counts["commissions"] += 1
         why = f" ({command.reason})" if command.reason else ""
         if command.accept:

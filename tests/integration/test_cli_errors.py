@@ -24,7 +24,7 @@ def test_bad_service_options_give_one_line_and_exit_2(args, words):
 
 
 @pytest.mark.parametrize("args, words", [
-    (["simulate", "--out", "x.mcap", "--plant", "motor.supply_v=300"], "outside the accepted range 80 … 140 V"),
+    (["simulate", "--out", "x.mcap", "--plant", "motor.supply_v=300"], "outside the accepted range 40 … 140 V"),
     (["simulate", "--out", "x.mcap", "--plant", "motor.bogus=1"], "unknown plant parameter"),
     (["simulate", "--out", "x.mcap", "--vary"], "expected one argument"),
     (["simulator", "--plant", "rail.heel_flex_factor=1"], "outside the accepted range"),

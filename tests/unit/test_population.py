@@ -26,7 +26,7 @@ def test_the_population_is_wider_than_the_examples_a_healthy_switch_must_survive
 
 
 @pytest.mark.parametrize("name, value, words", [
-    ("motor.supply_v", "300", "outside the accepted range 80 … 140 V"),
+    ("motor.supply_v", "300", "outside the accepted range 40 … 140 V"),
     ("motor.bogus", "1", "unknown plant parameter 'motor.bogus'"),
     ("rail.heel_flex_factor", "nan", "not a finite number"),
 ])
