@@ -148,8 +148,7 @@ OBSTACLE_TOLERANCE = 10_000.0
 # population's do (a standing condition) reads as about 11 000 N·s/m of bearing friction before it is accepted.
 BEARING_REACH = 1.5
 # A switch's own quantity that no fault mode names is an anomaly when the fit puts it at its credible bound (within this
-# share of the range: the population's 0.01 % tails, so a healthy switch is there one throw in thousands) or moves it
-# further than the weather can: from its commissioned level, more than the winding's temperature spans over a year
+# share of the range) from a commissioned level well inside it, or moves it further than the weather can: from its commissioned level, more than the winding's temperature spans over a year
 # (-25 … +55 °C: models/population.py); from its recent level, more than a day's swing with the winding's own warming
 # (30 K). A switch thrown less often than daily may see more between two throws.
 ANOMALOUS = "motor.resistance_ohm"
@@ -922,9 +921,11 @@ class SwitchDiagnoser:
         edge = AT_BOUND * (high - low)
         since = "" if commissioned is None else f", commissioned at {commissioned:.2f} Ω"
         why = None
-        if value >= high - edge:
+        # at a bound its commissioned level was well inside of (one that sat at it from the first throw, the model's
+        # error on that switch did put there: one in some dozens of healthy switches)
+        if commissioned is not None and value >= high - edge and commissioned < high * (1.0 - DAY_SWING):
             why = f"at the highest the population allows ({high:.2f} Ω){since}"
-        elif value <= low + edge:
+        elif commissioned is not None and value <= low + edge and commissioned > low * (1.0 + DAY_SWING):
             why = f"at the lowest the population allows ({low:.2f} Ω){since}"
         elif commissioned is not None and not 1.0 / SEASON <= value / commissioned <= SEASON:
             why = f"{100.0 * (value / commissioned - 1.0):+.0f} % from its commissioned {commissioned:.2f} Ω, more than a year's weather"

@@ -13,9 +13,9 @@ from typing import Annotated, Literal, Self, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from railswitch.schemas.messages import KEY_PREFIX, Diagnosis, Message, SwitchHealth, SwitchId, check_switch_id
+from railswitch.schemas.messages import KEY_PREFIX, Alarm, Diagnosis, Message, SwitchHealth, SwitchId, check_switch_id
 
-HistoryKind = Literal["diagnosis", "health"]
+HistoryKind = Literal["diagnosis", "health", "alarm"]
 HISTORY_KINDS: tuple[str, ...] = get_args(HistoryKind)
 HISTORY_KEYS = f"{KEY_PREFIX}/*/history"  # what a historian's queryable answers
 DEFAULT_LIMIT = 1000  # rows of each kind when a query names no limit
@@ -125,12 +125,13 @@ def parse_limit(text: str) -> int:
 
 
 class HistoryReply(Message):
-    """One switch's history, oldest first: its diagnoses and health messages in the query's window (the latest
-    `limit` of each kind; `truncated` when older ones in the window were left out), and the historian that
-    answered (<host>-<pid>)."""
+    """One switch's history, oldest first: its diagnoses, health messages and alarm changes in the query's window (the
+    latest `limit` of each kind; `truncated` when older ones in the window were left out), and the historian that
+    answered (<host>-<pid>). A reply without `alarms` came from a historian that did not keep them."""
 
     switch_id: SwitchId
     historian: str
     truncated: bool = False
     diagnoses: list[Diagnosis] = []
     health: list[SwitchHealth] = []
+    alarms: list[Alarm] = []

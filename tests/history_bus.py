@@ -6,7 +6,8 @@ from pathlib import Path
 
 import zenoh
 
-from railswitch.schemas import Diagnosis, HistoryReply, SwitchHealth, decode, encode, key_expr
+from railswitch.schemas import Alarm, Diagnosis, HistoryReply, SwitchHealth, decode, encode, key_expr
+from railswitch.services.adapters.history_store import HistoryRow
 from railswitch.services.adapters.processes import services_alive
 from tests.live import ServiceProcesses, wait_for, wait_ready
 
@@ -27,6 +28,25 @@ def diagnosis(switch_id: str, throw: int) -> Diagnosis:
 
 def health(switch_id: str, throw: int) -> SwitchHealth:
     return SwitchHealth(switch_id=switch_id, throw_index=throw, t_ns=throw_end(throw), model="poly", state="ok")
+
+
+def alarm(switch_id: str, sequence: int, throw: int = 3) -> Alarm:
+    """An alarm change at a throw's end, as a diagnoser publishes it."""
+    return Alarm(switch_id=switch_id, alarm="left_bolt", change="raised" if sequence == 1 else "acknowledged",
+                 severity="medium", cause="fault", text="left_bolt: left_bolt_offset 0.04 m",
+                 parameters={"left_bolt_offset": 0.04}, first_throw=throw, last_throw=throw, count=1, active=True,
+                 acknowledged=sequence > 1, sequence=sequence, t_ns=throw_end(throw), model="poly")
+
+
+def stored(switch_id: str, kind: str, throw: int) -> HistoryRow:
+    """The row a historian keeps of a diagnosis or health message of a throw."""
+    message = diagnosis(switch_id, throw) if kind == "diagnosis" else health(switch_id, throw)
+    return HistoryRow(switch_id, kind, throw, throw_end(throw), encode(message).decode())
+
+
+def stored_alarm(switch_id: str, sequence: int) -> HistoryRow:
+    message = alarm(switch_id, sequence)
+    return HistoryRow(switch_id, "alarm", sequence, message.t_ns, encode(message).decode())
 
 
 def publish_throws(session: zenoh.Session, switches: list[str], throws: range) -> None:

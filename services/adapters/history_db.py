@@ -11,6 +11,7 @@ fresh file.
 """
 from __future__ import annotations
 
+import logging
 import mmap
 import os
 import sqlite3
@@ -28,20 +29,36 @@ from railswitch.services.adapters.history_store import (
     HistoryStore,
 )
 
+log = logging.getLogger("railswitch.historian")
+
 __all__ = ["DamagedHistory", "HistoryDb", "HistoryDbError", "HistoryRow", "readable_rows", "salvage"]
-SCHEMA_VERSION = 1
-SCHEMA = f"""
-CREATE TABLE schema_version (version INTEGER NOT NULL);
-INSERT INTO schema_version VALUES ({SCHEMA_VERSION});
-CREATE TABLE history (
+# 2: alarm changes are kept too (the kinds' check names them). A file of version 1 is read as it is and migrated by
+# the first historian that opens it (MIGRATIONS: SQLite cannot change a check in place, so the table is copied).
+SCHEMA_VERSION = 2
+TABLE = """
+CREATE TABLE {name} (
     switch_id TEXT NOT NULL,
-    kind TEXT NOT NULL {KIND_CHECK},
+    kind TEXT NOT NULL {check},
     throw_index INTEGER NOT NULL,
     t_ns INTEGER NOT NULL,
     payload TEXT NOT NULL
-);
-CREATE UNIQUE INDEX history_by_switch_time ON history (switch_id, t_ns, kind, throw_index);
+);"""
+INDEX = "CREATE UNIQUE INDEX history_by_switch_time ON history (switch_id, t_ns, kind, throw_index);"
+SCHEMA = f"""
+CREATE TABLE schema_version (version INTEGER NOT NULL);
+INSERT INTO schema_version VALUES ({SCHEMA_VERSION});
+{TABLE.format(name="history", check=KIND_CHECK)}
+{INDEX}
 """
+MIGRATIONS = {1: f"""
+{TABLE.format(name="history_next", check=KIND_CHECK)}
+INSERT INTO history_next SELECT {COLUMNS} FROM history;
+DROP TABLE history;
+ALTER TABLE history_next RENAME TO history;
+{INDEX}
+UPDATE schema_version SET version = 2;
+"""}
+READABLE_VERSIONS = (1, SCHEMA_VERSION)
 SALVAGE_BATCH = 1000  # rows per transaction of a salvage
 
 
@@ -72,10 +89,10 @@ class HistoryDb(HistoryStore):
         except sqlite3.Error as error:
             raise HistoryDbError(f"cannot open history database {self.path}: {error}") from None
         if check:
-            self._check()
+            self._check(create)
         self._db.execute("PRAGMA synchronous = FULL")
 
-    def _check(self) -> None:
+    def _check(self, create: bool) -> None:
         """Refuse a damaged file, another program's database or a newer layout; create the tables in a new file."""
         try:
             problems = [row[0] for row in self._db.execute("PRAGMA quick_check")]
@@ -99,11 +116,14 @@ class HistoryDb(HistoryStore):
             raise HistoryDbError(f"{self.path} is not a railswitch history database "
                                  f"(it holds {', '.join(sorted(tables))})")
         version = self._db.execute("SELECT max(version) FROM schema_version").fetchone()[0]
-        if version != SCHEMA_VERSION:
+        if version not in READABLE_VERSIONS:
             self.close()
             raise HistoryDbError(f"{self.path} has history schema version {version}; this railswitch reads "
                                  f"version {SCHEMA_VERSION}")
         self._db.execute("PRAGMA journal_mode = WAL")
+        if version != SCHEMA_VERSION and create:
+            log.info("%s: history schema version %d migrated to %d", self.path, version, SCHEMA_VERSION)
+            self._db.executescript(f"BEGIN IMMEDIATE; {MIGRATIONS[version]} COMMIT;")
 
     def write(self, rows: Sequence[HistoryRow]) -> int:
         """Store rows in one transaction (all or none); returns how many were new (the rest were stored before).

@@ -15,6 +15,7 @@ could not write and writes it once the server is back.
 """
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 
 import psycopg
@@ -30,7 +31,12 @@ from railswitch.services.adapters.history_store import (
     masked,
 )
 
-SCHEMA_VERSION = 1
+# 2: alarm changes are kept too (the kinds' check names them). A database of version 1 is read as it is and migrated
+# by the first historian that opens it, under the schema lock.
+log = logging.getLogger("railswitch.historian")
+
+SCHEMA_VERSION = 2
+READABLE_VERSIONS = (1, SCHEMA_VERSION)
 TABLE = "railswitch_history"
 VERSION_TABLE = "railswitch_schema_version"
 INCOMING = "railswitch_incoming"  # a connection's own temporary table, a batch on its way in
@@ -46,6 +52,11 @@ CREATE TABLE {TABLE} (
     PRIMARY KEY (switch_id, kind, t_ns, throw_index)
 ) WITH (toast_tuple_target = 8160)
 """
+MIGRATIONS = {1: f"""
+ALTER TABLE {TABLE} DROP CONSTRAINT IF EXISTS {TABLE}_kind_check;
+ALTER TABLE {TABLE} ADD CONSTRAINT {TABLE}_kind_check {KIND_CHECK};
+UPDATE {VERSION_TABLE} SET version = {SCHEMA_VERSION};
+"""}
 INSERT = (f"INSERT INTO {TABLE} ({COLUMNS}) SELECT {COLUMNS} FROM {INCOMING} "
           "ORDER BY switch_id, kind, t_ns, throw_index ON CONFLICT DO NOTHING")
 # Historians starting at once create the tables one after the other: the first creates, the others check.
@@ -97,6 +108,10 @@ class PostgresHistory(HistoryStore):
                     return
                 version = db.execute(f"SELECT max(version) FROM {VERSION_TABLE}").fetchone()[0] \
                     if len(found) == 2 else None
+                if create and version in MIGRATIONS:
+                    db.execute(MIGRATIONS[version])
+                    log.info("%s: history schema version %d migrated to %d", self.name, version, SCHEMA_VERSION)
+                    version = SCHEMA_VERSION
         except psycopg.Error as error:
             self.close()
             raise self._error("check", error) from None
@@ -108,7 +123,7 @@ class PostgresHistory(HistoryStore):
             self.close()
             raise HistoryDbError(f"{self.name} is not a railswitch history database (it has {found[0]} but not "
                                  f"{({TABLE, VERSION_TABLE} - set(found)).pop()})")
-        if version != SCHEMA_VERSION:
+        if version not in READABLE_VERSIONS:
             self.close()
             raise HistoryDbError(f"{self.name} has history schema version {version}; this railswitch reads "
                                  f"version {SCHEMA_VERSION}")

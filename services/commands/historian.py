@@ -23,7 +23,7 @@ from pathlib import Path
 
 import zenoh
 
-from railswitch.schemas import HISTORY_KEYS, history_key
+from railswitch.schemas import HISTORY_KEYS, HISTORY_KINDS, history_key
 from railswitch.services.adapters.history_store import open_history
 from railswitch.services.adapters.zenoh_bus import (
     ELASTIC_LEASE_MS,
@@ -122,7 +122,7 @@ def run_historian(options: BusOptions, db_path: str | Path, *, shard: tuple[int,
         session = open_session(dataclasses.replace(options, lease_ms=ELASTIC_LEASE_MS), stop=stop)
         try:
             # what the diagnosers kept of each switch's latest throws comes too, after an outage or a late start
-            inbox = Inbox(session, [], catch_up=("diagnosis", "health"))
+            inbox = Inbox(session, [], catch_up=HISTORY_KINDS)
             members = LiveSet(session, "historian", ownership) if isinstance(ownership, Membership) else None
             with QueryServer(session, HistoryAnswers(query_db, ownership.is_mine, instance_name())) as server:
                 token = declare_service(session, "historian")  # declared once queries are answered

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 from railswitch.schemas import (
     CONTRACT_VERSION,
+    Alarm,
     HISTORY_KINDS,
     Diagnosis,
     HistoryQuery,
@@ -70,8 +71,15 @@ class HeldRows:
 
 
 def message_time(message: Message) -> int:
-    """The time a message is kept and looked up by: a diagnosis its throw's end, a health message its t_ns."""
+    """The time a message is kept and looked up by: a diagnosis its throw's end, a health message and an alarm change
+    their t_ns."""
     return message.t_end_ns if isinstance(message, Diagnosis) else message.t_ns
+
+
+def message_index(message: Message) -> int:
+    """What tells a switch's rows of one kind at one time apart: a throw's index, an alarm change's number (several
+    alarms change at one throw's end)."""
+    return message.sequence if isinstance(message, Alarm) else message.throw_index
 
 
 class Historian:
@@ -133,9 +141,10 @@ class Historian:
             return None
         kind = item.key.rsplit("/", 1)[1]
         t_ns = message_time(message)
-        if t_ns > MAX_TIME_NS or message.throw_index > MAX_TIME_NS:
+        index = message_index(message)
+        if t_ns > MAX_TIME_NS or index > MAX_TIME_NS:
             return self.intake.reject(f"{kind}: time or throw index beyond 64 bits", item.key)
-        row = HistoryRow(message.switch_id, kind, message.throw_index, t_ns, encode(message).decode())
+        row = HistoryRow(message.switch_id, kind, index, t_ns, encode(message).decode())
         owner = self.ownership.owner(message.switch_id)
         if owner == self.ownership.me:
             return row
@@ -210,12 +219,14 @@ def switch_in_key(key: str) -> str | None:
     return check_switch_id(parts[1])
 
 
-def reply_payload(switch_id: str, historian: str, diagnoses: list[str], health: list[str], truncated: bool) -> bytes:
+def reply_payload(switch_id: str, historian: str, diagnoses: list[str], health: list[str], truncated: bool,
+                  alarms: list[str] = ()) -> bytes:
     """A HistoryReply's JSON spliced from stored payloads: each was encoded from a validated message when it
     was written, so decoding and encoding it again would only cost time (benchmarks/historian.py)."""
     head = json.dumps({"contract": CONTRACT_VERSION, "switch_id": switch_id, "historian": historian,
                        "truncated": truncated}, separators=(",", ":"))
-    return f'{head[:-1]},"diagnoses":[{",".join(diagnoses)}],"health":[{",".join(health)}]}}'.encode()
+    return (f'{head[:-1]},"diagnoses":[{",".join(diagnoses)}],"health":[{",".join(health)}],'
+            f'"alarms":[{",".join(alarms)}]}}').encode()
 
 
 class HistoryAnswers:
@@ -264,7 +275,7 @@ class HistoryAnswers:
         for kind in query.kinds():
             found[kind] = self.db.latest(switch_id, kind, query.since_ns, query.until_ns, query.limit)
         return reply_payload(switch_id, self.historian, found["diagnosis"][0], found["health"][0],
-                             found["diagnosis"][1] or found["health"][1])
+                             any(truncated for _, truncated in found.values()), found["alarm"][0])
 
     def _refuse(self, kind: str, reason: str, key: str) -> Answer:
         """An error answer; one log line per kind of problem, not one per query."""
@@ -280,12 +291,14 @@ class HistoryAnswers:
 def merge_replies(replies: Sequence[HistoryReply], limit: int) -> HistoryReply:
     """One switch's history from the replies of every historian that held some of it (a switch whose shard
     changed hands), oldest first, the latest `limit` of each kind; a message two of them hold counts once."""
-    def unique(messages: list, time_of: Callable) -> list:
-        by_key = {(time_of(m), m.throw_index): m for m in messages}
+    def unique(messages: list) -> list:
+        by_key = {(message_time(m), message_index(m)): m for m in messages}
         return [by_key[k] for k in sorted(by_key)]
 
-    diagnoses = unique([d for r in replies for d in r.diagnoses], lambda d: d.t_end_ns)
-    health = unique([h for r in replies for h in r.health], lambda h: h.t_ns)
-    truncated = any(r.truncated for r in replies) or len(diagnoses) > limit or len(health) > limit
+    diagnoses = unique([d for r in replies for d in r.diagnoses])
+    health = unique([h for r in replies for h in r.health])
+    alarms = unique([a for r in replies for a in r.alarms])
+    truncated = any(r.truncated for r in replies) or max(map(len, (diagnoses, health, alarms))) > limit
     return HistoryReply(switch_id=replies[0].switch_id, historian=", ".join(r.historian for r in replies),
-                        truncated=truncated, diagnoses=diagnoses[-limit:], health=health[-limit:])
+                        truncated=truncated, diagnoses=diagnoses[-limit:], health=health[-limit:],
+                        alarms=alarms[-limit:])

@@ -13,6 +13,7 @@ import pytest
 
 from railswitch.schemas import (
     MAX_LIMIT,
+    Alarm,
     Diagnosis,
     ParameterHealth,
     ServiceStatus,
@@ -36,6 +37,8 @@ from tests.history_bus import (
     publish_throws,
     rows,
     start_historian,
+    stored,
+    stored_alarm,
     throw_end,
     wait_for_rows,
 )
@@ -45,11 +48,6 @@ from tests.live import ROOT, ServiceProcesses, client, start_router, wait_for
 def railswitch(*args: str, cwd: Path = ROOT, timeout_s: float = 120) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "railswitch", *args], cwd=cwd, capture_output=True, text=True,
                           timeout=timeout_s)
-
-
-def stored(switch_id: str, kind: str, throw: int) -> HistoryRow:
-    message = diagnosis(switch_id, throw) if kind == "diagnosis" else health(switch_id, throw)
-    return HistoryRow(switch_id, kind, throw, throw_end(throw), encode(message).decode())
 
 
 # -- the file --------------------------------------------------------------------------------------
@@ -66,7 +64,7 @@ def test_the_file_keeps_every_row_across_reopening_and_a_message_delivered_twice
         assert [decode(SwitchHealth, p.encode()).throw_index for p in window] == [1, 2]
     with sqlite3.connect(path) as direct:
         assert direct.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
-        assert direct.execute("SELECT version FROM schema_version").fetchone()[0] == 1
+        assert direct.execute("SELECT version FROM schema_version").fetchone()[0] == 2
         indexed = direct.execute("SELECT name FROM pragma_index_info('history_by_switch_time')").fetchall()
         assert [name for (name,) in indexed][:2] == ["switch_id", "t_ns"]
 
@@ -350,3 +348,28 @@ def test_bad_historian_and_history_values_give_one_line_and_exit_2(tmp_path, arg
     assert result.returncode == 2, result.stderr
     assert words in result.stderr and len(result.stderr.strip().splitlines()) == 1, result.stderr
     assert not (tmp_path / "h.sqlite").exists()  # refused before anything was created
+
+
+def test_a_version_1_file_is_read_as_it_is_and_migrated_by_a_historian_to_keep_alarms(tmp_path):
+    path = tmp_path / "history.sqlite"
+    with sqlite3.connect(path) as direct:  # the layout of version 1: no alarm rows
+        direct.executescript("""
+            CREATE TABLE schema_version (version INTEGER NOT NULL); INSERT INTO schema_version VALUES (1);
+            CREATE TABLE history (switch_id TEXT NOT NULL, kind TEXT NOT NULL CHECK (kind IN ('diagnosis', 'health')),
+                                  throw_index INTEGER NOT NULL, t_ns INTEGER NOT NULL, payload TEXT NOT NULL);
+            CREATE UNIQUE INDEX history_by_switch_time ON history (switch_id, t_ns, kind, throw_index);""")
+        direct.execute("INSERT INTO history VALUES (?, ?, ?, ?, ?)", stored("sw1", "diagnosis", 0))
+    direct.close()
+    with HistoryDb(path, create=False) as reader:  # a reader reads it and changes nothing
+        assert reader.count() == 1
+    with sqlite3.connect(path) as direct:
+        assert direct.execute("SELECT version FROM schema_version").fetchone()[0] == 1
+    direct.close()
+    with HistoryDb(path) as db:  # a historian migrates it, keeping its rows
+        assert db.write([stored_alarm("sw1", 1), stored_alarm("sw1", 2)]) == 2 and db.count() == 3
+        assert [decode(Alarm, p.encode()).change for p in db.latest("sw1", "alarm", None, None, 10)[0]] == [
+            "raised", "acknowledged"]
+    with sqlite3.connect(path) as direct:
+        assert direct.execute("SELECT version FROM schema_version").fetchone()[0] == 2
+        assert direct.execute("SELECT count(*) FROM pragma_index_info('history_by_switch_time')").fetchone()[0] == 4
+    direct.close()

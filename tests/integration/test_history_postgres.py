@@ -16,7 +16,7 @@ from railswitch.services.adapters.history_store import HistoryDbError, HistoryRo
 from railswitch.services.adapters.zenoh_bus import Received
 from railswitch.services.commands.report import health_from_db
 from railswitch.services.core.historian import Historian, message_time
-from tests.history_bus import diagnosis, health
+from tests.history_bus import diagnosis, health, stored, stored_alarm
 from tests.live import ROOT
 
 SWITCHES = [f"sw{k}" for k in range(1, 7)]
@@ -101,8 +101,8 @@ def test_a_database_holding_other_tables_gets_ours_and_a_half_layout_or_another_
     with open_history(pg_url) as history:
         assert history.count() == 0
     with psycopg.connect(pg_url, autocommit=True) as db:
-        db.execute("UPDATE railswitch_schema_version SET version = 2")
-    with pytest.raises(HistoryDbError, match="has history schema version 2; this railswitch reads version 1"):
+        db.execute("UPDATE railswitch_schema_version SET version = 3")
+    with pytest.raises(HistoryDbError, match="has history schema version 3; this railswitch reads version 2"):
         open_history(pg_url)
     with psycopg.connect(pg_url, autocommit=True) as db:
         db.execute("DROP TABLE railswitch_schema_version")
@@ -113,12 +113,12 @@ def test_a_database_holding_other_tables_gets_ours_and_a_half_layout_or_another_
 def test_a_newer_schema_version_stops_historian_history_and_report_in_one_line(tmp_path, pg_url):
     open_history(pg_url).close()
     with psycopg.connect(pg_url, autocommit=True) as db:
-        db.execute("UPDATE railswitch_schema_version SET version = 2")
+        db.execute("UPDATE railswitch_schema_version SET version = 3")
     for command in (["historian", "--connect", "tcp/127.0.0.1:9"], ["history", "sw1"], ["report", "--out", "p"]):
         result = railswitch(*command, "--db", pg_url, cwd=tmp_path)
         assert result.returncode == 2, result.stderr
         assert result.stderr.strip().splitlines() == [
-            f"railswitch: error: {pg_url} has history schema version 2; this railswitch reads version 1"]
+            f"railswitch: error: {pg_url} has history schema version 3; this railswitch reads version 2"]
 
 
 def test_history_from_a_database_without_our_tables_is_refused_and_creates_nothing(pg_url):
@@ -168,3 +168,21 @@ def test_salvage_is_refused_for_a_database_url_in_one_line(tmp_path):
 def test_a_history_file_path_still_means_sqlite(tmp_path):
     with open_history(tmp_path / "history.sqlite") as db:
         assert isinstance(db, HistoryDb)
+
+
+def test_a_version_1_database_is_read_as_it_is_and_migrated_by_a_historian_to_keep_alarms(pg_url):
+    with open_history(pg_url) as history:
+        history.write([stored("sw1", "diagnosis", 0)])
+    with psycopg.connect(pg_url, autocommit=True) as db:  # the layout of version 1: no alarm rows
+        db.execute("ALTER TABLE railswitch_history DROP CONSTRAINT railswitch_history_kind_check")
+        db.execute("ALTER TABLE railswitch_history ADD CONSTRAINT railswitch_history_kind_check "
+                   "CHECK (kind IN ('diagnosis', 'health'))")
+        db.execute("UPDATE railswitch_schema_version SET version = 1")
+    with open_history(pg_url, create=False) as reader:  # a reader reads it and changes nothing
+        assert reader.count() == 1
+    with psycopg.connect(pg_url, autocommit=True) as db:
+        assert db.execute("SELECT version FROM railswitch_schema_version").fetchone()[0] == 1
+    with open_history(pg_url) as history:  # a historian migrates it
+        assert history.write([stored_alarm("sw1", 1)]) == 1 and history.count() == 2
+    with psycopg.connect(pg_url, autocommit=True) as db:
+        assert db.execute("SELECT version FROM railswitch_schema_version").fetchone()[0] == 2
