@@ -13,7 +13,17 @@ import zenoh
 from rich.console import Console
 from rich.table import Table
 
-from railswitch.schemas import MAX_LIMIT, Diagnosis, HistoryQuery, HistoryReply, SwitchHealth, decode, history_key
+from railswitch.schemas import (
+    HISTORY_KINDS,
+    MAX_LIMIT,
+    Alarm,
+    Diagnosis,
+    HistoryQuery,
+    HistoryReply,
+    SwitchHealth,
+    decode,
+    history_key,
+)
 from railswitch.schemas.history import format_time, parse_time
 from railswitch.services.adapters.history_db import salvage
 from railswitch.services.adapters.history_store import is_url, open_history
@@ -59,10 +69,12 @@ def from_file(path: str, switch_id: str, query: HistoryQuery) -> HistoryReply:
     return decode(HistoryReply, answer.replies[0][1])
 
 
-def messages_in_order(reply: HistoryReply) -> list[Diagnosis | SwitchHealth]:
-    """Diagnoses and health messages by time; a throw's diagnosis before its health."""
+def messages_in_order(reply: HistoryReply) -> list[Diagnosis | SwitchHealth | Alarm]:
+    """Diagnoses, health messages and alarm changes by time; a throw's diagnosis before its health, then the alarm
+    changes it made in their order."""
     keyed = [((d.t_end_ns, d.throw_index, 0), d) for d in reply.diagnoses]
     keyed += [((h.t_ns, h.throw_index, 1), h) for h in reply.health]
+    keyed += [((a.t_ns, a.last_throw, 2, a.sequence), a) for a in reply.alarms]
     return [message for _, message in sorted(keyed, key=lambda pair: pair[0])]
 
 
@@ -73,6 +85,8 @@ def history_table(reply: HistoryReply) -> Table:
         table.add_column(column, justify="right" if column == "throw" else "left")
     rows: dict[tuple[int, int], list[str]] = {}
     for message in messages_in_order(reply):
+        if isinstance(message, Alarm):
+            continue  # in their own table
         if isinstance(message, Diagnosis):
             style = DECISION_STYLE.get(message.decision, "bold red")
             rows[message.t_end_ns, message.throw_index] = [
@@ -87,6 +101,18 @@ def history_table(reply: HistoryReply) -> Table:
     return table
 
 
+def alarm_table(reply: HistoryReply) -> Table:
+    """One row per alarm change: when, which alarm, what changed, its severity, throws and text."""
+    table = Table(title=f"alarm changes of {reply.switch_id}", expand=False)
+    for column in ("time (UTC)", "alarm", "change", "severity", "throws", "text"):
+        table.add_column(column)
+    for alarm in reply.alarms:
+        note = f" ({alarm.note})" if alarm.note else ""
+        table.add_row(format_time(alarm.t_ns), alarm.alarm, alarm.change, alarm.severity,
+                      f"{alarm.first_throw}–{alarm.last_throw} ({alarm.count})", alarm.text + note)
+    return table
+
+
 def show(reply: HistoryReply, as_json: bool) -> None:
     if as_json:
         for message in messages_in_order(reply):
@@ -94,7 +120,10 @@ def show(reply: HistoryReply, as_json: bool) -> None:
         return
     console = Console()
     console.print(history_table(reply))
-    note = f"{len(reply.diagnoses)} diagnoses, {len(reply.health)} health messages from {reply.historian}"
+    if reply.alarms:
+        console.print(alarm_table(reply))
+    note = (f"{len(reply.diagnoses)} diagnoses, {len(reply.health)} health messages, {len(reply.alarms)} alarm changes "
+            f"from {reply.historian}")
     if reply.truncated:
         note += "; older ones in the window were left out (--limit, --until)"
     console.print(note, highlight=False)
@@ -115,8 +144,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="from T: ISO-8601 (UTC unless it has an offset) or integer nanoseconds")
     parser.add_argument("--until", type=time_argument("until"), default=None, metavar="T", help="up to (before) T")
     parser.add_argument("--limit", type=options.bounded(int, 1, MAX_LIMIT), default=DEFAULT_LIMIT, metavar="N",
-                        help=f"the latest N diagnoses and N health messages (default {DEFAULT_LIMIT})")
-    parser.add_argument("--kind", choices=("diagnosis", "health"), default=None, help="one kind of message only")
+                        help=f"the latest N diagnoses, N health messages and N alarm changes (default {DEFAULT_LIMIT})")
+    parser.add_argument("--kind", choices=HISTORY_KINDS, default=None, help="one kind of message only")
     parser.add_argument("--json", action="store_true", help="the messages as JSON lines, oldest first")
     parser.add_argument("--db", metavar="F.sqlite|URL", default=None,
                         help="read a history file, or a postgresql:// database, instead of the bus")

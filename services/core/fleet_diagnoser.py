@@ -162,6 +162,8 @@ class Diagnoser:
         """Acknowledge a switch's alarms (all, or the one named); the changes, none when there was nothing to
         acknowledge."""
         self.switch(switch_id)
+        latest = self.last_throws.get(switch_id)  # a change never comes before the one it follows (the throw's clock
+        t_ns = max(t_ns, latest[1] if latest else 0)  # may be a simulator's, ahead of this one's)
         changes = self.books[switch_id].acknowledge(t_ns, alarm, note)
         if changes:
             self._saved(switch_id)
