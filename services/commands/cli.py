@@ -28,6 +28,7 @@ COMMANDS: dict[str, str] = {  # name (and module) -> help
     "commission": "restart a switch's commissioning after maintenance (its baseline is learnt again), or --accept it as it is",
     "ack": "acknowledge a switch's alarms (all, or --alarm ID), with an optional --note",
     "maintenance": "--start or --end a switch's maintenance: its throws raise no alarm and teach nothing meanwhile",
+    "fleet": "every switch by urgency: latched alarms first, then the fewest throws to a limit (bus or --db)",
     "historian": "keep every diagnosis and health message in an SQLite file and answer history queries",
     "history": "a switch's diagnoses and health over time, from the historians on the bus or a history file",
     "demo": "router, simulator, diagnoser, recorder and historian with a live table and summary",

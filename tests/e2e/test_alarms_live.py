@@ -99,6 +99,20 @@ def test_a_raised_alarm_is_acknowledged_once_kept_by_the_historian_and_misdirect
     assert {a["sequence"] for a in kept()} >= {raised[0].sequence, acknowledged.sequence}
 
 
+def test_the_fleet_view_from_the_bus_and_from_the_file_agree(bus):
+    endpoint, _, alarms, _, db = bus
+    wait_for(lambda: any(a.change == "acknowledged" for a in alarms.received), 60, "an acknowledgement")
+    from_bus = railswitch("fleet", "--connect", endpoint, "--json")
+    from_file = railswitch("fleet", "--db", str(db), "--json")
+    assert from_bus.returncode == 0 and from_file.returncode == 0, from_bus.stderr + from_file.stderr
+    rows = [json.loads(line) for line in from_bus.stdout.splitlines()]
+    assert [(r["switch_id"], r["acknowledged"], r["last_throw"]) for r in rows] == [("faulty", True, 2)]
+    assert rows[0]["alarms"][0]["alarm"] == "left_bolt" and "left_bolt" in rows[0]["faults"]
+    assert [json.loads(line) for line in from_file.stdout.splitlines()] == rows
+    table = railswitch("fleet", "--db", str(db))
+    assert table.returncode == 0 and "faulty" in table.stdout and "left_bolt" in table.stdout
+
+
 def test_maintenance_starts_once_over_the_bus(bus):
     endpoint, _, _, status, _ = bus
     assert railswitch("maintenance", "faulty", "--start", "--note", "bolts", "--connect", endpoint).returncode == 0
