@@ -3,7 +3,9 @@
 Per switch, `<switch>_health.png` draws each fault parameter over the throws with its ±2σ band, its limit and
 the throw at which the latest trend reaches it, from the switch's SwitchHealth messages: those a recording
 holds, else those its offline diagnosis gives (`--model`), or those a history store keeps (`--db F.sqlite|URL`).
-`<switch>_estimates.png` draws each throw's estimates. Throws are whole numbers on every axis.
+`<switch>_estimates.png` draws each throw's estimates, and `<switch>_features.png` each throw feature (throw time,
+peak, mean and lock current, energy) per direction against the band its commissioning taught, from the same health
+messages. Throws are whole numbers on every axis.
 """
 from __future__ import annotations
 
@@ -144,6 +146,40 @@ def _draw_crossing(ax: Axes, p: ParameterSeries, horizon: int) -> None:
         ax.plot([], [], "v", color="tab:red", ms=8, label=label + ", beyond the picture")
 
 
+FEATURE_LABELS = {"throw_time_s": "throw time [s]", "peak_current_a": "peak current [A]",
+                  "mean_current_a": "mean current [A]", "energy_j": "energy [J]", "lock_current_a": "lock current [A]"}
+DIRECTION_COLOURS = {"left_to_right": "tab:blue", "right_to_left": "tab:orange"}
+
+
+def features_figure(switch_id: str, healths: list[SwitchHealth]) -> Figure:
+    """Each feature over the throws, per direction, with its commissioned band."""
+    fig, axes = plt.subplots(len(FEATURE_LABELS), 1, figsize=(9, 11), sharex=True)
+    for ax, (name, label) in zip(axes, FEATURE_LABELS.items()):
+        for direction, colour in DIRECTION_COLOURS.items():
+            points = sorted((h.throw_index, f) for h in healths for f in h.features
+                            if f.name == name and f.direction == direction)
+            if not points:
+                continue
+            throws = [t for t, _ in points]
+            ax.plot(throws, [f.value for _, f in points], "o-", ms=3, lw=1, color=colour,
+                    label=direction.replace("_", " "))
+            ax.fill_between(throws, [f.low for _, f in points], [f.high for _, f in points], color=colour, alpha=0.12,
+                            step="mid")
+            outside = [(t, f.value) for t, f in points if f.state == "outside"]
+            if outside:
+                ax.plot(*zip(*outside), "x", color="red", ms=7)
+        ax.set_ylabel(label, fontsize=8)
+        ax.grid(alpha=0.3)
+        throw_axis(ax)
+    handles, labels = next((found for ax in axes if (found := ax.get_legend_handles_labels())[0]), ([], []))
+    if handles:
+        fig.legend(handles, labels, fontsize=8, loc="upper right")
+    axes[-1].set_xlabel("throw")
+    fig.suptitle(f"{switch_id}: throw features against their commissioned band (x: outside it)")
+    fig.tight_layout()
+    return fig
+
+
 def save(fig: Figure, target: Path) -> Path:
     fig.savefig(target, dpi=110)
     plt.close(fig)
@@ -167,6 +203,12 @@ def life_pictures(out: Path, healths: list[SwitchHealth], fits: dict[tuple[str, 
         by_switch[switch_id].append(item)
     written += [save(estimates_figure(switch_id, items), out / f"{switch_id}_estimates.png")
                 for switch_id, items in by_switch.items()]
+    by_switch_health: dict[str, list[SwitchHealth]] = defaultdict(list)
+    for health in healths:
+        if health.features:
+            by_switch_health[health.switch_id].append(health)
+    written += [save(features_figure(switch_id, items), out / f"{switch_id}_features.png")
+                for switch_id, items in sorted(by_switch_health.items())]
     return written
 
 

@@ -2,8 +2,8 @@
 throws as whole numbers."""
 from types import SimpleNamespace
 
-from railswitch.schemas import Diagnosis, Hypothesis, ParameterHealth, SwitchHealth
-from railswitch.services.commands.report import estimates_figure, health_figure, life_pictures
+from railswitch.schemas import Diagnosis, FeatureHealth, Hypothesis, ParameterHealth, SwitchHealth
+from railswitch.services.commands.report import estimates_figure, features_figure, health_figure, life_pictures
 from railswitch.services.core.fleet_diagnoser import DiagnosedThrow
 from railswitch.services.core.health_series import health_series
 
@@ -78,3 +78,22 @@ def test_parameters_are_drawn_in_the_contracts_order_whichever_a_switch_reported
     assert series.parameters["left_bolt_offset"].throws.tolist() == [1]
     labels = [ax.get_ylabel().split("\n")[0] for ax in health_figure(series).axes]
     assert labels == ["left_bolt_offset", "bearing_friction"]
+
+
+def with_features(switch_id: str, throw: int, peak_a: float) -> SwitchHealth:
+    """A commissioned switch's health with its features' trend in the throw's direction."""
+    direction = "left_to_right" if throw % 2 == 0 else "right_to_left"
+    feature = FeatureHealth(name="peak_current_a", direction=direction, value=peak_a, mean=2.9, low=2.6, high=3.2,
+                            state="ok" if 2.6 <= peak_a <= 3.2 else "outside")
+    return bearing(switch_id, throw, 10.0).model_copy(update={"features": [feature]})
+
+
+def test_a_switch_whose_health_holds_features_gets_a_features_picture_with_its_band(tmp_path):
+    healths = [with_features("sw1", k, 2.9 + 0.05 * k) for k in range(10)] + [bearing("sw2", 0, 10.0)]
+    written = life_pictures(tmp_path, healths, {})
+    assert [path.name for path in written] == ["sw1_health.png", "sw2_health.png", "sw1_features.png"]
+    figure = features_figure("sw1", healths[:10])
+    peak = figure.axes[1]
+    assert peak.get_ylabel() == "peak current [A]"
+    marked = sorted(int(x) for line in peak.get_lines() if line.get_marker() == "x" for x in line.get_xdata())
+    assert marked == [7, 8, 9]  # the throws outside the band (3.2 A), each direction's own
