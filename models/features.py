@@ -12,7 +12,9 @@ throw's duration), so a throw read from MCAP, CSV or the bus has the same featur
 - energy: the current's magnitude integrated over the throw, times the supply's nominal voltage (what a monitor
   that logs the current alone reports; the supply's own voltage is not measured);
 - lock current: the mean magnitude over the stroke's part in which the crank runs into its dead centre, where the
-  end-position hook latches (models/lock.py: the last end_zone of rod travel, by the reference's angle).
+  end-position hook latches (models/lock.py: the last end_zone of rod travel, by the reference's angle);
+- speed lag: how far the motor's speed fell short of its reference at most, from the start to the stroke's end (a
+  unit that logs the speed only): a speed-controlled drive follows its reference unless it runs short of voltage.
 
 A feature the throw cannot give (no stroke at top speed, no sample in the lock zone) is None.
 """
@@ -30,7 +32,7 @@ from railswitch.models.reference import DIRECTIONS, Reference
 from railswitch.models.signals import MotorSignals
 from railswitch.schemas.plant import PLANT_PARAMETERS
 
-FEATURES = ("throw_time_s", "peak_current_a", "mean_current_a", "energy_j", "lock_current_a")
+FEATURES = ("throw_time_s", "peak_current_a", "mean_current_a", "energy_j", "lock_current_a", "speed_lag_rad_s")
 TOP_SHARE = 0.95  # of the reference's top speed: the stroke
 STILL_SHARE = 0.1  # of the reference's top speed: the motor has stopped (models/switch_diagnosis.py cut_short alike)
 SETTLE_S = 0.1  # after the reference first reaches its top speed: the start-up surge and the speed loop's overshoot
@@ -66,6 +68,9 @@ def throw_features(t_s: np.ndarray, signals: MotorSignals, reference: Reference,
     locking = stroke & (angle >= entry)
     if np.count_nonzero(locking) >= 2:
         out["lock_current_a"] = float(np.mean(current[locking]))
+    if signals.velocity_rad_s is not None:
+        until = t_s <= float(reference.t_s[fast[-1]])
+        out["speed_lag_rad_s"] = max(0.0, float(np.max(commanded[until] - np.abs(signals.velocity_rad_s[until]))))
     return out
 
 
@@ -113,6 +118,10 @@ class FeatureTrends:
                         "slope_per_100": self._slope(direction, name),
                         "state": "ok" if low <= value <= high else "outside"})
         return out
+
+    def latest(self, direction: str, name: str) -> float | None:
+        """A feature's value in the direction's latest throw (None before one, or where that throw had none)."""
+        return self.recent[direction][-1][1].get(name) if self.recent[direction] else None
 
     def _slope(self, direction: str, name: str) -> float:
         points = [(i, f[name]) for i, f in self.recent[direction] if name in f]

@@ -44,6 +44,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy import stats
 
 from railswitch.models.drive import DriveParams
 from railswitch.models.estimation import DRIVING_BOLT, WITHOUT, Estimate, HypothesisSpec, Measurement, ThrowEstimator
@@ -62,6 +63,8 @@ from railswitch.models.fault_set import (
 from railswitch.models.health import TRACKED, Health, HealthTracker
 from railswitch.models.isolation import (
     EVIDENCE_THROWS,
+    FALSE_ALARM_RATE,
+    MODEL_ERROR_MARGIN,
     OTHER_DIRECTION,
     Evidence,
     candidate_modes,
@@ -151,6 +154,9 @@ BEARING_REACH = 1.5
 # share of the range) from a commissioned level well inside it, or moves it further than the weather can: from its commissioned level, more than the winding's temperature spans over a year
 # (-25 … +55 °C: models/population.py); from its recent level, more than a day's swing with the winding's own warming
 # (30 K). A switch thrown less often than daily may see more between two throws.
+# A throw no hypothesis explains is an anomaly: the best fit's residual (its MSE over its effective samples) beyond
+# MODEL_ERROR_MARGIN times what the switch's commissioning throws left, at the chi-square quantile of its effective
+# samples at FALSE_ALARM_RATE (models/isolation.py: the same test a fault's detection makes).
 ANOMALOUS = "motor.resistance_ohm"
 AT_BOUND = 0.005
 SEASON = resistance_at(55.0) / resistance_at(-25.0)
@@ -932,7 +938,7 @@ class SwitchDiagnoser:
         elif recent is not None and abs(value / recent - 1.0) > DAY_SWING:
             why = f"{100.0 * (value / recent - 1.0):+.0f} % from its recent {recent:.2f} Ω in one throw, more than a day's weather"
         if why is None:
-            return []
+            return self._unexplained(verdict)
         high_side = value > (recent if recent is not None else 0.5 * (low + high))
         suspects = (["motor.resistance_ohm", "motor.torque_constant_nm_a"] if high_side
                     else ["motor.supply_v", "motor.resistance_ohm"])
@@ -940,6 +946,29 @@ class SwitchDiagnoser:
                  if high_side else "a supply sag that saturates the drive, or a shorted winding?")
         return [{"quantity": ANOMALOUS, "value": value, "commissioned": commissioned, "unit": "Ω",
                  "reason": f"winding resistance {value:.2f} Ω {why}: {cause}", "suspects": suspects}]
+
+    def _unexplained(self, verdict: ThrowVerdict) -> list[dict]:
+        """An anomaly when no hypothesis explains the throw as well as the switch's commissioning throws were explained
+        (module constants); named a supply sag when the motor lagged its reference further than a healthy switch's."""
+        best = min(verdict.estimates.values(), key=lambda e: e.mse)
+        weight = self.baseline.model_weight()
+        if weight <= 0.0 or best.effective_samples <= 0.0:
+            return []
+        ratio = best.mse / best.effective_samples / weight
+        dof = max(best.effective_samples, 1.0)
+        limit = MODEL_ERROR_MARGIN * float(stats.chi2.ppf(1.0 - FALSE_ALARM_RATE, dof) / dof)
+        if ratio <= limit:
+            return []
+        lag = self.trends.latest(verdict.direction, "speed_lag_rad_s")
+        band = self.trends.band(verdict.direction, "speed_lag_rad_s")
+        if lag is not None and band is not None and lag > band[2]:
+            return [{"quantity": "motor.supply_v", "value": None, "commissioned": None, "unit": "V",
+                     "reason": f"no fault explains the throw (its residual {ratio:.1f} times the commissioned one) and "
+                               f"the motor lagged its reference by {lag:.0f} rad/s (commissioned {band[0]:.0f}): "
+                               f"the drive ran short of voltage, a supply sag?", "suspects": ["motor.supply_v"]}]
+        return [{"quantity": "residual", "value": ratio, "commissioned": 1.0, "unit": "",
+                 "reason": f"no fault explains the throw: its residual is {ratio:.1f} times the commissioned one "
+                           f"(a binding gearbox, a damaged rod or a fault no mode names?)", "suspects": []}]
 
     def diagnose_aside(self, throw: ThrowInput) -> Outcome:
         """A throw's outcome that leaves the switch as it was (maintenance: the team's throws teach no baseline, trend or

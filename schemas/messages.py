@@ -240,6 +240,7 @@ class ThrowFeatures(Message):
     mean_current_a: MaybeNonNegative = None  # over the stroke
     energy_j: MaybeNonNegative = None  # drawn over the throw, at the point machine's nominal supply voltage
     lock_current_a: MaybeNonNegative = None  # mean current while the crank runs into its locking dead centre
+    speed_lag_rad_s: MaybeNonNegative = None  # the motor's largest shortfall below its reference speed (speed logged)
 
 
 class Anomaly(Message):
