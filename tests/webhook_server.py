@@ -1,4 +1,5 @@
-"""A real HTTP server on loopback that records what is POSTed to it, for the notifier's tests."""
+"""A real HTTP server on loopback that records what is POSTed to it, and the alarm changes the notifier's tests
+send it."""
 from __future__ import annotations
 
 import socket
@@ -7,11 +8,21 @@ from collections.abc import Iterable
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import NamedTuple
 
+from railswitch.schemas import Alarm
+
 
 class Posted(NamedTuple):
     path: str
     headers: dict[str, str]
     body: bytes
+
+
+def alarm_change(sequence: int, switch_id: str = "sw1", change: str = "raised") -> Alarm:
+    """Change `sequence` of a switch's obstacle alarm."""
+    return Alarm(switch_id=switch_id, alarm="obstacle", change=change, severity="high", cause="fault",
+                 text="obstacle at 0.42 m", parameters={"obstacle_position": 0.42}, first_throw=3,
+                 last_throw=3 + sequence, count=1 + sequence, active=change != "cleared", acknowledged=False,
+                 sequence=sequence, t_ns=1_700_000_000 * 10**9 + sequence, model="poly")
 
 
 def free_loopback_port() -> int:

@@ -8,16 +8,9 @@ from railswitch.schemas import Alarm, decode
 from railswitch.services.adapters.processes import wait_for
 from railswitch.services.adapters.webhook import Webhook
 from railswitch.services.core.notifier import Notifier
-from tests.webhook_server import WebhookServer, free_loopback_port
+from tests.webhook_server import WebhookServer, alarm_change, free_loopback_port
 
 FIRST_RETRY_S = 0.05  # the backoff's first wait, short so that a test's retries take a fraction of a second
-
-
-def alarm(sequence: int, switch_id: str = "sw1", change: str = "raised") -> Alarm:
-    return Alarm(switch_id=switch_id, alarm="obstacle", change=change, severity="high", cause="fault",
-                 text="obstacle at 0.42 m", parameters={"obstacle_position": 0.42}, first_throw=3,
-                 last_throw=3 + sequence, count=1 + sequence, active=change != "cleared", acknowledged=False,
-                 sequence=sequence, t_ns=1_700_000_000 * 10**9 + sequence, model="poly")
 
 
 def notifier(server_url: str) -> Notifier:
@@ -30,7 +23,8 @@ def delivered(n: Notifier, posted: int) -> bool:
 
 
 def test_each_change_is_posted_once_in_order_as_the_alarms_json():
-    changes = [alarm(0), alarm(0, "sw2"), alarm(1, change="escalated"), alarm(2, change="cleared"), alarm(1, "sw2")]
+    changes = [alarm_change(0), alarm_change(0, "sw2"), alarm_change(1, change="escalated"),
+               alarm_change(2, change="cleared"), alarm_change(1, "sw2")]
     with WebhookServer() as server, notifier(server.url()) as n:
         for change in changes:
             n.offer(change)
@@ -43,10 +37,10 @@ def test_each_change_is_posted_once_in_order_as_the_alarms_json():
 
 def test_a_change_offered_twice_is_posted_once():
     with WebhookServer() as server, notifier(server.url()) as n:
-        assert n.offer(alarm(0))
+        assert n.offer(alarm_change(0))
         wait_for(lambda: delivered(n, 1), 10, "the change posted")
-        assert not n.offer(alarm(0))  # again, from a publisher's cache on catching up
-        assert n.offer(alarm(1))
+        assert not n.offer(alarm_change(0))  # again, from a publisher's cache on catching up
+        assert n.offer(alarm_change(1))
         wait_for(lambda: delivered(n, 2), 10, "the next change posted")
     assert [decode(Alarm, body).sequence for body in server.bodies()] == [0, 1]
     assert n.counters()["duplicates"] == 1
@@ -54,7 +48,7 @@ def test_a_change_offered_twice_is_posted_once():
 
 def test_a_server_failing_three_times_gets_the_change_on_the_fourth_attempt_and_the_failure_is_logged_once(caplog):
     with WebhookServer(statuses=[503, 503, 500]) as server, notifier(server.url()) as n, caplog.at_level(logging.INFO):
-        n.offer(alarm(0))
+        n.offer(alarm_change(0))
         wait_for(lambda: delivered(n, 1), 10, "the change posted")
     assert server.bodies() == [server.bodies()[0]] * 4
     counters = n.counters()
@@ -67,17 +61,17 @@ def test_a_server_failing_three_times_gets_the_change_on_the_fourth_attempt_and_
 def test_a_server_down_at_first_gets_the_change_once_it_listens():
     port = free_loopback_port()
     with notifier(f"http://127.0.0.1:{port}/alarms") as n:
-        n.offer(alarm(0))
+        n.offer(alarm_change(0))
         wait_for(lambda: n.counters().get("failed_attempts: connection refused", 0) >= 2, 10, "attempts refused")
         with WebhookServer(port) as server:
             wait_for(lambda: delivered(n, 1), 60, "the change posted once the server listens")
-    assert [decode(Alarm, body) for body in server.bodies()] == [alarm(0)]
+    assert [decode(Alarm, body) for body in server.bodies()] == [alarm_change(0)]
 
 
 def test_a_change_the_server_refuses_with_400_is_not_tried_again_and_the_next_one_goes_on():
     with WebhookServer(statuses=[400]) as server, notifier(server.url()) as n:
-        n.offer(alarm(0))
-        n.offer(alarm(1))
+        n.offer(alarm_change(0))
+        n.offer(alarm_change(1))
         wait_for(lambda: delivered(n, 2), 10, "both changes done")
     assert [decode(Alarm, body).sequence for body in server.bodies()] == [0, 1]
     counters = n.counters()
