@@ -57,6 +57,9 @@ class Webhook:
 
     def __init__(self, url: str, headers: dict[str, str] | None = None, timeout_s: float = 10.0):
         self.url = check_url(url)
+        # what logs name: a webhook's path or query often holds its secret token, and user:password@ would
+        parts = urlsplit(url)
+        self.where = f"{parts.scheme}://{parts.netloc.rpartition('@')[2]}"
         self.headers = {"Content-Type": "application/json", "User-Agent": "railswitch-notify", **(headers or {})}
         self.timeout_s = timeout_s
         self._opener = urllib.request.build_opener(_NoRedirects)

@@ -29,7 +29,7 @@ def run_notify(options: BusOptions, webhook: Webhook, *, stop: threading.Event, 
         with Notifier(webhook.post) as notifier:
             token = declare_service(session, "notify")
             status = StatusReporter(Publishers(session), "notify", intake, status_s)
-            log.info("forwarding alarm changes to %s", webhook.url)
+            log.info("forwarding alarm changes to the webhook at %s", webhook.where)
             for item in inbox.drain(stop):
                 alarm = None if item is None else intake.message(item)
                 if alarm is not None:

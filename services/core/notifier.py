@@ -35,7 +35,7 @@ def change_of(alarm: Alarm) -> tuple[str, int]:
 def backoff_s(failures: int, first_s: float, max_s: float) -> float:
     """The wait after `failures` failed attempts in a row: doubling from first_s up to max_s, drawn between half
     and all of it so that notifiers failing together do not all try again at once."""
-    full = min(max_s, first_s * 2 ** (failures - 1))
+    full = min(max_s, first_s * 2.0 ** min(failures - 1, 64))  # a day-long outage must not overflow a float
     return random.uniform(full / 2, full)
 
 
@@ -79,13 +79,12 @@ class Notifier:
         return True
 
     def counters(self) -> dict[str, int]:
-        with self._changed:
-            pending = len(self._pending) + (self._in_flight is not None)
-        return ({"posted": self.posted, "pending": pending, "retries": self.retries, "duplicates": self.duplicates,
-                 "dropped": self.dropped, "refused": sum(self.refused.values()),
-                 "failed_attempts": sum(self.failed.values())}
-                | {f"failed_attempts: {kind}": n for kind, n in self.failed.items()}
-                | {f"refused: {kind}": n for kind, n in self.refused.items()})
+        with self._changed:  # the worker adds kinds of failure meanwhile
+            return ({"posted": self.posted, "pending": len(self._pending) + (self._in_flight is not None),
+                     "retries": self.retries, "duplicates": self.duplicates, "dropped": self.dropped,
+                     "refused": sum(self.refused.values()), "failed_attempts": sum(self.failed.values())}
+                    | {f"failed_attempts: {kind}": n for kind, n in self.failed.items()}
+                    | {f"refused: {kind}": n for kind, n in self.refused.items()})
 
     def _next(self) -> Alarm | None:
         """The oldest pending change, now in flight, or None once closed."""
@@ -130,7 +129,8 @@ class Notifier:
     def _failed(self, failure: DeliveryFailed, alarm: Alarm) -> bool:
         """Count and (once per kind) log a failed attempt; whether the change is given up (refused for good)."""
         counter = self.refused if failure.permanent else self.failed
-        counter[failure.kind] += 1
+        with self._changed:
+            counter[failure.kind] += 1
         if counter[failure.kind] == 1:
             if failure.permanent:
                 log.error("the webhook refused %s alarm change %d (%s): not retried (further refusals are counted)",
