@@ -39,11 +39,13 @@ def check_url(url: str) -> str:
 
 
 def check_header(text: str) -> tuple[str, str]:
-    """'Name: value' as (name, value), else ValueError naming it; for an authorization token, say."""
+    """'Name: value' as (name, value), else ValueError naming it; for an authorization token, say. Printable ASCII
+    only: anything else would fail every POST (http.client encodes headers as Latin-1 and refuses line breaks)."""
     name, sep, value = text.partition(":")
     name, value = name.strip(), value.strip()
-    if not sep or not name or not all(c.isalnum() or c in "-_" for c in name) or "\r" in value or "\n" in value:
-        raise ValueError(f"{text!r} is not a header 'Name: value'")
+    if (not sep or not name or not all(c.isascii() and (c.isalnum() or c in "-_") for c in name)
+            or not (value.isascii() and value.isprintable())):
+        raise ValueError(f"{text!r} is not a header 'Name: value' in printable ASCII")
     return name, value
 
 

@@ -15,7 +15,8 @@ from tests.live import ROOT
     (["simulator", "--switches", "2", "--switch-id", "a"], "not both"),
     (["recorder", "--out", "/nonexistent-dir/x.mcap"], "does not exist"),
     (["replay", "/nonexistent.mcap"], "cannot read"),
-    (["notify", "--webhook", "http://127.0.0.1:9/", "--header", "no colon"], "'no colon' is not a header 'Name: value'"),
+    (["notify", "--webhook", "http://127.0.0.1:9/", "--header", "no colon"], "'no colon' is not a header 'Name: value' in printable ASCII"),
+    (["notify", "--webhook", "http://127.0.0.1:9/", "--header", "X-Token: é"], "is not a header 'Name: value'"),
     (["notify", "--webhook", "http://127.0.0.1:9/", "--timeout", "0"], "0 is outside the accepted range 0.1 … 300 s"),
 ])
 def test_bad_service_options_give_one_line_and_exit_2(args, words):
