@@ -76,3 +76,14 @@ def test_a_change_the_server_refuses_with_400_is_not_tried_again_and_the_next_on
     assert [decode(Alarm, body).sequence for body in server.bodies()] == [0, 1]
     counters = n.counters()
     assert counters["refused: HTTP 400"] == 1 and counters["posted"] == 1 and counters["retries"] == 0
+
+
+def test_beyond_max_pending_waiting_changes_the_oldest_are_dropped_and_counted():
+    with WebhookServer() as server:
+        n = Notifier(Webhook(server.url()).post, max_pending=2)
+        for sequence in range(5):  # offered before the worker starts: all five wait
+            n.offer(alarm_change(sequence))
+        with n:
+            wait_for(lambda: delivered(n, 2), 10, "the changes kept posted")
+    assert [decode(Alarm, body).sequence for body in server.bodies()] == [3, 4]
+    assert n.counters()["dropped"] == 3
