@@ -31,6 +31,7 @@ COMMANDS: dict[str, str] = {  # name (and module) -> help
     "fleet": "every switch by urgency: latched alarms first, then the fewest throws to a limit (bus or --db)",
     "historian": "keep every diagnosis and health message in an SQLite file and answer history queries",
     "history": "a switch's diagnoses and health over time, from the historians on the bus or a history file",
+    "notify": "forward alarm changes to a webhook (JSON over HTTP POST, with retry)",
     "demo": "router, simulator, diagnoser, recorder and historian with a live table and summary",
 }
 

@@ -39,10 +39,11 @@ MAY_PUBLISH = {  # the policy the router must enforce (deploy/secure/README.md)
     "historian": set(),
     "recorder": set(),
     "operator": {"inject", "commission"},
+    "notify": set(),
 }
-SERVICES = ("simulator", "replay", "diagnoser", "historian", "recorder")
+SERVICES = ("simulator", "replay", "diagnoser", "historian", "recorder", "notify")
 MAY_ANNOUNCE = {"simulator": {"simulator", "replay"}, "diagnoser": {"diagnoser"}, "historian": {"historian"},
-                "recorder": {"recorder"}, "operator": set()}
+                "recorder": {"recorder"}, "operator": set(), "notify": {"notify"}}
 # What a subscriber to switch data listens on: every switch's channel of one kind, and everything
 SWITCH_PATTERNS = tuple(f"railswitch/*/{topic}" for topic in SWITCH_TOPICS) + ("railswitch/**",)
 
