@@ -150,10 +150,13 @@ OBSTACLE_TOLERANCE = 10_000.0
 # How far a missing bearing's fit may go beyond the contract's range: a switch whose rollers lose twice what the
 # population's do (a standing condition) reads as about 11 000 N·s/m of bearing friction before it is accepted.
 BEARING_REACH = 1.5
-# A switch's own quantity that no fault mode names is an anomaly when the fit puts it at its credible bound (within this
-# share of the range) from a commissioned level well inside it, or moves it further than the weather can: from its commissioned level, more than the winding's temperature spans over a year
-# (-25 … +55 °C: models/population.py); from its recent level, more than a day's swing with the winding's own warming
-# (30 K). A switch thrown less often than daily may see more between two throws.
+# A switch's own quantity that no fault mode names is an anomaly when the fit puts it at its credible bound (within
+# AT_BOUND of the range) from a commissioned level well inside it, or moves it further than the weather can: from its
+# commissioned level, more than the winding's temperature spans over a year (-25 … +55 °C: models/population.py); from
+# its recent level, more than a day's swing with the winding's own warming (30 K). A switch thrown less often than
+# daily may see more between two throws. Downwards each allows the supply's tolerance too: a supply below its usual
+# reads as a lower resistance (the drive gives less current for the same demand), and a healthy switch's supply may sit
+# anywhere within +-10 % of its nominal (models/population.py).
 # A throw no hypothesis explains is an anomaly: the best fit's residual (its MSE over its effective samples) beyond
 # MODEL_ERROR_MARGIN times what the switch's commissioning throws left, at the chi-square quantile of its effective
 # samples at FALSE_ALARM_RATE (models/isolation.py: the same test a fault's detection makes).
@@ -161,6 +164,7 @@ ANOMALOUS = "motor.resistance_ohm"
 AT_BOUND = 0.005
 SEASON = resistance_at(55.0) / resistance_at(-25.0)
 DAY_SWING = COPPER_PER_K * 30.0
+SUPPLY_TOLERANCE = 0.1
 BOLT_GRID = tuple(np.round(np.arange(-0.02, 0.2001, 0.02), 4))
 OBSTACLE_GRID = tuple({"obstacle_position": round(float(p), 3), "obstacle_friction": f}
                       for p in np.arange(1.02, 1.1801, 0.02) for f in (3e4, 1.5e5))
@@ -931,11 +935,12 @@ class SwitchDiagnoser:
         # error on that switch did put there: one in some dozens of healthy switches)
         if commissioned is not None and value >= high - edge and commissioned < high * (1.0 - DAY_SWING):
             why = f"at the highest the population allows ({high:.2f} Ω){since}"
-        elif commissioned is not None and value <= low + edge and commissioned > low * (1.0 + DAY_SWING):
+        elif commissioned is not None and value <= low + edge and (
+                commissioned > low * (1.0 + DAY_SWING + SUPPLY_TOLERANCE)):
             why = f"at the lowest the population allows ({low:.2f} Ω){since}"
-        elif commissioned is not None and not 1.0 / SEASON <= value / commissioned <= SEASON:
+        elif commissioned is not None and not (1.0 - SUPPLY_TOLERANCE) / SEASON <= value / commissioned <= SEASON:
             why = f"{100.0 * (value / commissioned - 1.0):+.0f} % from its commissioned {commissioned:.2f} Ω, more than a year's weather"
-        elif recent is not None and abs(value / recent - 1.0) > DAY_SWING:
+        elif recent is not None and not -(DAY_SWING + SUPPLY_TOLERANCE) <= value / recent - 1.0 <= DAY_SWING:
             why = f"{100.0 * (value / recent - 1.0):+.0f} % from its recent {recent:.2f} Ω in one throw, more than a day's weather"
         if why is None:
             return self._unexplained(verdict)

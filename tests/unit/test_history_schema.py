@@ -31,7 +31,7 @@ def test_parameters_become_a_query_and_back():
     assert (query.since_ns, query.until_ns, query.limit, query.kind) == (
         1_714_521_600 * 10**9, 1_714_564_800 * 10**9, 5, "health")
     assert HistoryQuery.from_parameters(dict(p.split("=") for p in query.parameters().split(";"))) == query
-    assert HistoryQuery.from_parameters({}).kinds() == ("diagnosis", "health")
+    assert HistoryQuery.from_parameters({}).kinds() == ("diagnosis", "health", "alarm")
 
 
 @pytest.mark.parametrize("parameters, words", [
