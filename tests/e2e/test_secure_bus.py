@@ -32,13 +32,14 @@ TEMPLATES = ROOT / "deploy" / "secure"
 SECRETS_DIR = "/etc/railswitch/secure"  # where the templates expect certificates and credentials
 PLACEHOLDER = "REPLACE-WITH-A-RANDOM-PASSWORD"
 USERS = [line.split(":")[0] for line in (TEMPLATES / "credentials.txt.example").read_text().split()]
-SWITCH_TOPICS = ("motor", "throw", "truth", "record", "diagnosis", "health", "state", "inject", "commission")
+SWITCH_TOPICS = ("motor", "throw", "truth", "record", "diagnosis", "health", "state", "inject", "commission", "alarm",
+                 "ack", "maintenance")
 MAY_PUBLISH = {  # the policy the router must enforce (deploy/secure/README.md)
     "simulator": {"motor", "throw", "truth", "record", "inject"},
-    "diagnoser": {"diagnosis", "health", "state"},
+    "diagnoser": {"diagnosis", "health", "state", "alarm"},
     "historian": set(),
     "recorder": set(),
-    "operator": {"inject", "commission"},
+    "operator": {"inject", "commission", "ack", "maintenance"},
     "notify": set(),
 }
 SERVICES = ("simulator", "replay", "diagnoser", "historian", "recorder", "notify")
