@@ -137,11 +137,20 @@ class FeatureTrends:
         self.recent = {d: deque(maxlen=RECENT_THROWS) for d in DIRECTIONS}
 
     def to_dict(self) -> dict:
-        return {"learnt": self.learnt, "recent": {d: [list(p) for p in self.recent[d]] for d in DIRECTIONS}}
+        """Compact: each throw's features as a row in the order of `names`, to six significant digits (far below any
+        feature's throw-to-throw scatter), null where the throw had none."""
+        def row(values: dict[str, float]) -> list[float | None]:
+            return [None if values.get(n) is None else float(f"{values[n]:.6g}") for n in FEATURES]
+        return {"names": list(FEATURES), "learnt": {d: [row(f) for f in self.learnt[d]] for d in DIRECTIONS},
+                "recent": {d: [[index, *row(f)] for index, f in self.recent[d]] for d in DIRECTIONS}}
 
     def load(self, data: dict) -> None:
         self.reset()
+        names = data.get("names", FEATURES)
+
+        def values(row: list) -> dict[str, float]:
+            return {n: float(v) for n, v in zip(names, row) if v is not None and n in FEATURES}
         for direction in DIRECTIONS:
-            self.learnt[direction] = [dict(f) for f in data.get("learnt", {}).get(direction, [])][:self.needed]
-            for index, values in data.get("recent", {}).get(direction, []):
-                self.recent[direction].append((int(index), dict(values)))
+            self.learnt[direction] = [values(r) for r in data.get("learnt", {}).get(direction, [])][:self.needed]
+            for index, *row in data.get("recent", {}).get(direction, []):
+                self.recent[direction].append((int(index), values(row)))
