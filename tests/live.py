@@ -66,6 +66,10 @@ class DiagnosisCollector:
     def decisions(self) -> dict[tuple[str, int], str]:
         return {(d.switch_id, d.throw_index): d.decision for d in self.received}
 
+    def features(self) -> dict[tuple[str, int], dict]:
+        """Each throw's features as its diagnosis carried them."""
+        return {(d.switch_id, d.throw_index): d.features.model_dump() for d in self.received if d.features is not None}
+
     def counts(self) -> Counter[tuple[str, int]]:
         """How many diagnoses each throw (switch, throw index) got."""
         return Counter((d.switch_id, d.throw_index) for d in list(self.received))

@@ -1,6 +1,7 @@
 """End to end with real processes: router, simulator, diagnoser, recorder, replay and demo on loopback."""
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
 import sys
@@ -46,6 +47,7 @@ class LiveRun:
     decisions: dict[tuple[str, int], str]
     recorder_exit: int
     watched: str
+    features: dict[tuple[str, int], dict]
 
 
 @pytest.fixture(scope="module")
@@ -68,7 +70,7 @@ def live_run(tmp_path_factory) -> LiveRun:
         recorder_exit = recorder.wait(30)
         watch.wait(30)
         watched = services.log(watch)
-    return LiveRun(recording, collector.decisions(), recorder_exit, watched)
+    return LiveRun(recording, collector.decisions(), recorder_exit, watched, collector.features())
 
 
 def test_live_diagnoses_match_the_injected_faults(live_run):
@@ -119,6 +121,11 @@ def test_replay_into_a_fresh_diagnoser_and_offline_diagnosis_agree_with_live(liv
     assert offline.returncode == 0, offline.stderr
     assert collector.decisions() == live_run.decisions
     assert jsonl_decisions(offline.stdout) == live_run.decisions
+    # a throw's features come from its samples alone: the same from the bus, a replay and the file
+    offline_features = {(d["switch_id"], d["throw_index"]): d["features"]
+                        for d in map(json.loads, offline.stdout.splitlines())}
+    assert len(live_run.features) == 6 and live_run.features["faulty", 2]["peak_current_a"] > 0
+    assert collector.features() == live_run.features == offline_features
 
 
 def test_fault_command_changes_the_next_throws_diagnosis(tmp_path):
