@@ -4,6 +4,7 @@ nothing and are counted in the diagnoser's status."""
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 import sys
 import threading
@@ -12,6 +13,7 @@ import pytest
 import zenoh
 
 from railswitch.schemas import Alarm, decode
+from railswitch.services.adapters.processes import services_alive
 from tests.live import ROOT, ServiceWatch, live_bus, wait_for, wait_ready
 
 SCENARIO = """
@@ -53,12 +55,18 @@ def bus(tmp_path_factory):
     with live_bus(work) as (services, endpoint, session, collector):
         alarms = AlarmCollector(session)
         status = ServiceWatch(session, "diagnoser")
-        services.start("diagnoser", "--connect", endpoint, "--status-interval", "0.5")
+        state = work / "state"
+        diagnoser = services.start("diagnoser", "--connect", endpoint, "--status-interval", "0.5", "--state", str(state))
         services.start("historian", "--connect", endpoint, "--db", str(db))
         wait_ready(session, services, diagnoser=1, historian=1)
         simulator = services.start("simulator", "--connect", endpoint, "--scenario", str(scenario), "--speed", "20")
         assert simulator.wait(120) == 0, services.log(simulator)
         wait_for(lambda: ("faulty", "left_bolt", "raised") in alarms.changes(), 60, "the bolt's alarm raised")
+        # the diagnoser killed and started again on its state: the latched alarm is what it acknowledges below
+        services.stop(diagnoser, signal.SIGKILL)
+        wait_for(lambda: services_alive(session)["diagnoser"] == 0, 30, "the diagnoser gone")
+        services.start("diagnoser", "--connect", endpoint, "--status-interval", "0.5", "--state", str(state))
+        wait_ready(session, services, diagnoser=1)
         yield endpoint, session, alarms, status, db
 
 
@@ -67,7 +75,7 @@ def rejected(status: ServiceWatch, reason: str) -> int:
     return latest[-1].rejected.get(reason, 0) if latest else 0
 
 
-def test_a_raised_alarm_is_acknowledged_once_kept_by_the_historian_and_misdirected_acks_change_nothing(bus):
+def test_a_raised_alarm_survives_a_diagnoser_killed_and_is_acknowledged_once_kept_by_the_historian_and_misdirected_acks_change_nothing(bus):
     endpoint, session, alarms, status, db = bus
     raised = [a for a in alarms.received if a.alarm == "left_bolt"]
     assert [a.change for a in raised][:1] == ["raised"] and len([a for a in raised if a.change == "raised"]) == 1
