@@ -945,10 +945,17 @@ class SwitchDiagnoser:
         if why is None:
             return self._unexplained(verdict)
         high_side = value > (recent if recent is not None else 0.5 * (low + high))
-        suspects = (["motor.resistance_ohm", "motor.torque_constant_nm_a"] if high_side
-                    else ["motor.supply_v", "motor.resistance_ohm"])
-        cause = ("a cable or winding fault, or weakened magnets (a lower torque constant reads as a higher resistance)?"
-                 if high_side else "a supply sag that saturates the drive, or a shorted winding?")
+        frictions = sorted(self.faults.keys() & {"missing_bearing", "drive_friction"})
+        if high_side and frictions:  # weaker magnets need more current for the same torque: friction too
+            suspects = ["motor.torque_constant_nm_a", "motor.resistance_ohm"]
+            cause = (f"weakened magnets (a lower torque constant reads as a higher resistance and as friction: the "
+                     f"{' and '.join(frictions)} beside it may be the magnets), or a cable or winding fault?")
+        elif high_side:
+            suspects = ["motor.resistance_ohm", "motor.torque_constant_nm_a"]
+            cause = "a cable or winding fault, or weakened magnets (a lower torque constant reads as a higher resistance)?"
+        else:
+            suspects = ["motor.supply_v", "motor.resistance_ohm"]
+            cause = "a supply sag that saturates the drive, or a shorted winding?"
         return [{"quantity": ANOMALOUS, "value": value, "commissioned": commissioned, "unit": "Ω",
                  "reason": f"winding resistance {value:.2f} Ω {why}: {cause}", "suspects": suspects}]
 

@@ -91,3 +91,16 @@ def test_a_latched_alarm_survives_a_diagnoser_restart_and_clears_only_on_acknowl
     assert acknowledged[0].sequence > cleared[0].sequence
     assert "right_bolt" not in restarted.books["latched"].alarms  # acknowledged and cleared: closed
     assert "right_bolt" not in AlarmBook.from_dict(store.load("latched")["alarms"]).alarms  # kept closed on disk
+
+
+def test_weakening_magnets_read_as_an_anomaly_that_names_them_not_as_a_silent_bearing(diagnoser, plant):
+    """A torque constant 14 % down once read missing_bearing on every throw: a team sent to grease chairs."""
+    switch = Switch(diagnoser, plant, "magnets", seed=815)
+    switch.throws(COMMISSIONED + 1)
+    switch.sim.set_own({**switch.own, "motor.torque_constant_nm_a": switch.own["motor.torque_constant_nm_a"] * 0.86})
+    after = [t.diagnosis for t in switch.throws(5)]
+    assert all("anomaly" in d.faults for d in after), [d.named() for d in after]
+    last = after[-1].anomalies[0]
+    assert "motor.torque_constant_nm_a" in last.suspects and "magnets" in last.reason
+    if set(after[-1].faults) & {"missing_bearing", "drive_friction"}:  # read as friction too: the magnets first
+        assert last.suspects[0] == "motor.torque_constant_nm_a", last.reason
