@@ -555,6 +555,7 @@ class SwitchDiagnoser:
         self.candidates: dict[str, list[dict]] = {d: [] for d in DIRECTIONS}
         self.drive = estimator.reduced.params.plant.drive
         self.trends = FeatureTrends(self.baseline.needed)  # the throws' features, against their commissioning band
+        self.anomalous_since: int | None = None  # the first throw of the anomalies the latest throws showed
 
     # -- commissioning ------------------------------------------------------------------------
     def restart_commissioning(self) -> None:
@@ -564,6 +565,7 @@ class SwitchDiagnoser:
         self._forget()
 
     def _forget(self) -> None:
+        self.anomalous_since = None
         self.latest.clear()
         self.faults.clear()
         self.evidence.clear()
@@ -912,6 +914,10 @@ class SwitchDiagnoser:
             self.trends.learn(direction, features)
         feature_health = [] if provisional else self.trends.update(throw.index, direction, features)
         anomalies = [] if provisional else self._anomalies(verdict)
+        if not anomalies:
+            self.anomalous_since = None
+        elif self.anomalous_since is None:
+            self.anomalous_since = throw.index
         if not anomalies and shown == "nominal" and not provisional:  # the weather's level, followed
             self.baseline.follow(ANOMALOUS, verdict.estimates["nominal"].values[ANOMALOUS])
         return Outcome(decision, reason, verdict, estimates_now.get(decision), health, tuple(sorted(self.faults)),
@@ -960,12 +966,14 @@ class SwitchDiagnoser:
                  "reason": f"winding resistance {value:.2f} Ω {why}: {cause}", "suspects": suspects}]
 
     def _unexplained(self, verdict: ThrowVerdict) -> list[dict]:
-        """An anomaly when no hypothesis explains the throw of a switch without present faults as well as its
-        commissioning throws were explained (module constants); named a supply sag when the motor lagged its reference
-        further than a healthy switch's. Beside a present fault the test says nothing: the model's error grows with the
+        """An anomaly when no hypothesis explains the throw as well as the switch's commissioning throws were explained
+        (module constants); named a supply sag when the motor lagged its reference further than a healthy switch's.
+        Beside a fault confirmed before the anomalies began the test says nothing: the model's error grows with the
         fault (a near-stall obstacle's fit left several times a healthy throw's residual), and commissioning measured it
-        on the healthy switch only."""
-        if self.faults:
+        on the healthy switch only. A fault confirmed while the switch was anomalous may be the anomaly misread (a
+        saturated drive read as a loose bolt), and the test goes on."""
+        began = self.anomalous_since if self.anomalous_since is not None else verdict.index
+        if any(fault.since < began for fault in self.faults.values()):
             return []
         best = min(verdict.estimates.values(), key=lambda e: e.mse)
         weight = self.baseline.model_weight()
@@ -1322,7 +1330,7 @@ class SwitchDiagnoser:
         baseline, its present faults and its health over the throws so far."""
         return {"baseline": self.baseline.to_dict(), "health": self.health.to_dict(),
                 "faults": [fault.to_dict() for fault in self.faults.values()], "standing": self.standing,
-                "candidates": self.candidates, "features": self.trends.to_dict()}
+                "candidates": self.candidates, "features": self.trends.to_dict(), "anomalous_since": self.anomalous_since}
 
     def resume(self, state: dict) -> None:
         self.baseline = Baseline.from_dict(state["baseline"])
@@ -1333,3 +1341,4 @@ class SwitchDiagnoser:
         self.candidates = {d: list(state.get("candidates", {}).get(d, [])) for d in DIRECTIONS}
         self.trends = FeatureTrends(self.baseline.needed)
         self.trends.load(state.get("features", {}))  # a state saved before features were trended has none
+        self.anomalous_since = state.get("anomalous_since")
