@@ -2,8 +2,9 @@
 
 Each throw names the conditions it sees (a present fault, an anomaly, a feature outside its band), each with a
 severity. An alarm is raised the first time its condition is seen; a repeat only counts and moves its last throw; a
-higher severity escalates it (and asks for a new acknowledgement). When a throw that could see the condition no longer
-does, the alarm is cleared but stays latched until acknowledged; acknowledged and cleared, it is closed, and the next
+higher severity escalates it (and asks for a new acknowledgement). When CLEAR_AFTER throws in a row that could see the
+condition no longer do, the alarm is cleared (one quiet throw does not flap it: a condition one direction shows more
+than the other) but stays latched until acknowledged; acknowledged and cleared, it is closed, and the next
 occurrence raises a new one. Only changes are returned, numbered per switch (`sequence`), so each is published once.
 """
 from __future__ import annotations
@@ -12,6 +13,8 @@ from collections.abc import Collection
 from dataclasses import asdict, dataclass, field
 
 from railswitch.schemas.messages import SEVERITIES
+
+CLEAR_AFTER = 2  # judged throws in a row without its condition that clear an alarm
 
 
 @dataclass(frozen=True)
@@ -37,6 +40,7 @@ class AlarmState:
     active: bool = True
     acknowledged: bool = False
     note: str | None = None
+    quiet: int = 0  # judged throws in a row without its condition
 
 
 @dataclass(frozen=True)
@@ -75,13 +79,16 @@ class AlarmBook:
                 changes.append(self._change("raised", alarm_id, t_ns))
                 continue
             state.count += 1
-            state.last_throw = throw
+            state.last_throw, state.quiet = throw, 0
             state.text, state.parameters = condition.text, dict(condition.parameters)
             if rank(condition.severity) > rank(state.severity):
                 state.severity, state.acknowledged, state.note = condition.severity, False, None
                 changes.append(self._change("escalated", alarm_id, t_ns))
         for alarm_id, state in list(self.alarms.items()):
             if state.active and alarm_id not in conditions and (judged is None or alarm_id in judged):
+                state.quiet += 1
+                if state.quiet < CLEAR_AFTER:
+                    continue
                 state.active = False
                 changes.append(self._change("cleared", alarm_id, t_ns))
                 if state.acknowledged:
@@ -117,5 +124,5 @@ class AlarmBook:
     def from_dict(cls, data: dict | None) -> AlarmBook:
         if not data:
             return cls()
-        alarms = {a["alarm"]: AlarmState(**a) for a in data.get("alarms", [])}
+        alarms = {a["alarm"]: AlarmState(**{"quiet": 0, **a}) for a in data.get("alarms", [])}
         return cls(alarms, int(data.get("sequence", 0)))

@@ -27,6 +27,7 @@ def test_a_higher_severity_escalates_and_asks_for_a_new_acknowledgement():
 def test_a_cleared_alarm_stays_latched_until_acknowledged_and_then_closes():
     book = AlarmBook()
     book.observe(1, 1, {"left_bolt": BOLT})
+    assert book.observe(2, 2, {}) == []  # one quiet throw does not clear it
     cleared = book.observe(2, 2, {})
     assert [(c.change, c.alarm.active) for c in cleared] == [("cleared", False)]
     assert [s.alarm for s in book.latched()] == ["left_bolt"]  # still there for the operator
@@ -39,13 +40,20 @@ def test_a_cleared_alarm_stays_latched_until_acknowledged_and_then_closes():
     assert [(c.change, c.alarm.first_throw, c.sequence) for c in again] == [("raised", 6, 4)]
 
 
+def test_a_condition_that_comes_and_goes_throw_by_throw_stays_one_active_alarm():
+    book = AlarmBook()
+    changes = [c.change for k in range(10) for c in book.observe(k, k, {"left_bolt": BOLT} if k % 2 == 0 else {})]
+    assert changes == ["raised"]
+
+
 def test_an_acknowledged_active_alarm_closes_when_it_clears_and_a_named_ack_leaves_the_others():
     book = AlarmBook()
     anomaly = Condition("anomaly", "high", "winding resistance at its bound", {"motor.resistance_ohm": 11.4})
     book.observe(1, 1, {"left_bolt": BOLT, "anomaly:motor.resistance_ohm": anomaly})
     assert [c.alarm.alarm for c in book.acknowledge(2, "left_bolt")] == ["left_bolt"]
     assert [c.alarm.alarm for c in book.acknowledge(3, "nothing-such")] == []
-    assert [(c.change, c.alarm.alarm) for c in book.observe(4, 4, {"anomaly:motor.resistance_ohm": anomaly})] == [
+    book.observe(4, 4, {"anomaly:motor.resistance_ohm": anomaly})
+    assert [(c.change, c.alarm.alarm) for c in book.observe(5, 5, {"anomaly:motor.resistance_ohm": anomaly})] == [
         ("cleared", "left_bolt")]
     assert list(book.alarms) == ["anomaly:motor.resistance_ohm"]
 
@@ -54,8 +62,11 @@ def test_only_the_alarms_a_throw_judged_are_cleared():
     book = AlarmBook()
     feature = Condition("feature", "low", "peak current outside its band", {"peak_current_a": 4.0})
     book.observe(1, 1, {"feature:peak_current_a:left_to_right": feature})
-    assert book.observe(2, 2, {}, judged=set()) == []  # a throw the other way does not see it
-    assert [c.change for c in book.observe(3, 3, {}, judged={"feature:peak_current_a:left_to_right"})] == ["cleared"]
+    for k in (2, 3):
+        assert book.observe(k, k, {}, judged=set()) == []  # throws the other way do not see it
+    judged = {"feature:peak_current_a:left_to_right"}
+    assert book.observe(4, 4, {}, judged=judged) == []
+    assert [c.change for c in book.observe(5, 5, {}, judged=judged)] == ["cleared"]
 
 
 def test_a_book_read_back_from_its_state_goes_on_where_it_was():
