@@ -968,12 +968,13 @@ class SwitchDiagnoser:
     def _unexplained(self, verdict: ThrowVerdict) -> list[dict]:
         """An anomaly when no hypothesis explains the throw as well as the switch's commissioning throws were explained
         (module constants); named a supply sag when the motor lagged its reference further than a healthy switch's.
-        Beside a fault confirmed before the anomalies began the test says nothing: the model's error grows with the
-        fault (a near-stall obstacle's fit left several times a healthy throw's residual), and commissioning measured it
-        on the healthy switch only. A fault confirmed while the switch was anomalous may be the anomaly misread (a
-        saturated drive read as a loose bolt), and the test goes on."""
+        Beside a fault confirmed before the anomalies began, or at the throw they began, the test says nothing: the
+        model's error grows with the fault (a near-stall obstacle's fit left three times a healthy throw's residual, from
+        the throw that confirmed it on), and commissioning measured it on the healthy switch only. A fault confirmed
+        later, while the switch was anomalous, may be the anomaly misread (a saturated drive read as a loose bolt after
+        some throws), and the test goes on."""
         began = self.anomalous_since if self.anomalous_since is not None else verdict.index
-        if any(fault.since < began for fault in self.faults.values()):
+        if any(fault.since <= began for fault in self.faults.values()):
             return []
         best = min(verdict.estimates.values(), key=lambda e: e.mse)
         weight = self.baseline.model_weight()
