@@ -13,7 +13,7 @@ Beside them (issue 40), switches that change in ways no fault mode names after c
 winding's resistance up 30 to 80 % (a cable or winding fault), the torque constant down 8 to 20 % (weakening
 magnets) or the supply sagging to 60 to 85 % of what the drive needs at its busiest (the most of resistance times
 current plus back-EMF over the switch's last healthy throw, from its true own parameters): deep enough to saturate
-the drive for a good part of its start, by the plant's own figures (within 10 % of the need it saturates for a moment
+the drive for a good part of its start, by the plant's own figures (within about 15 % of the need it saturates for a moment
 and the motor lags its reference no more than on a healthy throw); and healthy switches that
 go through maintenance (--maintenance), during which the team leaves a bolt loose for a few throws. Prints how many
 anomalies were reported (any throw after the change with "anomaly" among its faults and the changed quantity among
