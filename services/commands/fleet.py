@@ -10,16 +10,17 @@ import argparse
 import json
 import sys
 from collections import defaultdict
+from collections.abc import Iterable
 
-import zenoh
 from rich.console import Console
 from rich.table import Table
 
-from railswitch.schemas import HISTORY_KEYS, HistoryQuery, HistoryReply, decode
+from railswitch.schemas import HISTORY_KEYS, HistoryQuery, HistoryReply
 from railswitch.schemas.history import format_time
 from railswitch.services.adapters.history_store import open_history
 from railswitch.services.adapters.zenoh_bus import BusError, BusOptions, open_session
 from railswitch.services.commands import options
+from railswitch.services.commands.history import ask_historians
 from railswitch.services.commands.watch import state_markup
 from railswitch.services.core.fleet_view import FleetRow, fleet_rows
 from railswitch.services.core.historian import HistoryAnswers, merge_replies
@@ -34,28 +35,24 @@ SEVERITY_STYLE = {"info": "dim", "low": "cyan", "medium": "yellow", "high": "bol
 def from_bus(bus: BusOptions, timeout_s: float) -> list[HistoryReply]:
     """Every switch's latest diagnosis and health and its alarm changes, from every historian, merged per switch."""
     session = open_session(bus, wait_s=timeout_s)
-    by_switch: dict[str, list[HistoryReply]] = defaultdict(list)
     try:
-        for query in QUERIES:
-            for reply in session.get(f"{HISTORY_KEYS}?{query.parameters()}", target=zenoh.QueryTarget.ALL,
-                                     consolidation=zenoh.ConsolidationMode.NONE, timeout=timeout_s):
-                if reply.ok is not None:
-                    found = decode(HistoryReply, reply.ok.payload.to_bytes())
-                    by_switch[found.switch_id].append(found)
+        return per_switch(r for query in QUERIES for r in ask_historians(session, HISTORY_KEYS, query, timeout_s)[0])
     finally:
         session.close()
-    return [merge_replies(replies, ALARM_CHANGES) for replies in by_switch.values()]
 
 
 def from_db(path: str) -> list[HistoryReply]:
-    by_switch: dict[str, list[HistoryReply]] = defaultdict(list)
     with open_history(path, create=False) as db:
         answers = HistoryAnswers(db, is_mine=lambda _: True, historian=db.name)
-        for query in QUERIES:
-            for _, payload in answers.answer_query(query, None).replies:
-                found = decode(HistoryReply, payload)
-                by_switch[found.switch_id].append(found)
-    return [merge_replies(replies, ALARM_CHANGES) for replies in by_switch.values()]
+        return per_switch(r for query in QUERIES for r in answers.answer_query(query, None).decoded())
+
+
+def per_switch(replies: Iterable[HistoryReply]) -> list[HistoryReply]:
+    """The replies of each switch (one per query and historian) merged into one."""
+    by_switch: dict[str, list[HistoryReply]] = defaultdict(list)
+    for reply in replies:
+        by_switch[reply.switch_id].append(reply)
+    return [merge_replies(found, ALARM_CHANGES) for found in by_switch.values()]
 
 
 def fleet_table(rows: list[FleetRow]) -> Table:

@@ -39,18 +39,25 @@ class HistoryError(RuntimeError):
     """No history could be had (the historians refused or did not answer); the message is one line."""
 
 
+def ask_historians(session: zenoh.Session, key: str, query: HistoryQuery,
+                   timeout_s: float) -> tuple[list[HistoryReply], list[str]]:
+    """Every historian's replies to a query on key (consolidation off: every reply comes back), and the error
+    replies' texts."""
+    found, errors = [], []
+    for reply in session.get(f"{key}?{query.parameters()}", target=zenoh.QueryTarget.ALL,
+                             consolidation=zenoh.ConsolidationMode.NONE, timeout=timeout_s):
+        if reply.ok is not None:
+            found.append(decode(HistoryReply, reply.ok.payload.to_bytes()))
+        else:
+            errors.append(reply.err.payload.to_string())
+    return found, errors
+
+
 def from_bus(bus: BusOptions, switch_id: str, query: HistoryQuery, timeout_s: float) -> HistoryReply:
-    """Ask every historian (consolidation off: every reply comes back) and merge what they hold."""
+    """Ask every historian and merge what they hold."""
     session = open_session(bus, wait_s=timeout_s)
     try:
-        replies = session.get(f"{history_key(switch_id)}?{query.parameters()}", target=zenoh.QueryTarget.ALL,
-                              consolidation=zenoh.ConsolidationMode.NONE, timeout=timeout_s)
-        found, errors = [], []
-        for reply in replies:
-            if reply.ok is not None:
-                found.append(decode(HistoryReply, reply.ok.payload.to_bytes()))
-            else:
-                errors.append(reply.err.payload.to_string())
+        found, errors = ask_historians(session, history_key(switch_id), query, timeout_s)
     finally:
         session.close()
     if found:
@@ -66,7 +73,7 @@ def from_file(path: str, switch_id: str, query: HistoryQuery) -> HistoryReply:
         answer = HistoryAnswers(db, is_mine=lambda _: True, historian=db.name).answer_query(query, switch_id)
     if answer.error is not None:
         raise HistoryError(f"{db.name}: {answer.error}")
-    return decode(HistoryReply, answer.replies[0][1])
+    return answer.decoded()[0]
 
 
 def messages_in_order(reply: HistoryReply) -> list[Diagnosis | SwitchHealth | Alarm]:

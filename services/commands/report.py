@@ -24,7 +24,7 @@ from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 from railswitch.schemas.faults import FAULT_PARAMETERS  # noqa: E402
 from railswitch.services.core.fleet_diagnoser import DiagnosedThrow, Diagnoser, diagnose_messages  # noqa: E402
-from railswitch.schemas import MAX_LIMIT, HistoryQuery, HistoryReply, Message, SwitchHealth, decode  # noqa: E402
+from railswitch.schemas import MAX_LIMIT, HistoryQuery, Message, SwitchHealth  # noqa: E402
 from railswitch.services.adapters.history_store import open_history  # noqa: E402
 from railswitch.services.adapters.recordings import load_recording  # noqa: E402
 from railswitch.services.commands.options import add_model_argument, fail  # noqa: E402
@@ -191,7 +191,7 @@ def health_from_db(path: str) -> list[SwitchHealth]:
     with open_history(path, create=False) as db:
         answer = HistoryAnswers(db, lambda _: True, historian=db.name).answer_query(
             HistoryQuery(kind="health", limit=MAX_LIMIT), None)
-    return [h for _, payload in answer.replies for h in decode(HistoryReply, payload).health]
+    return [h for reply in answer.decoded() for h in reply.health]
 
 
 def life_pictures(out: Path, healths: list[SwitchHealth], fits: dict[tuple[str, int], DiagnosedThrow]) -> list[Path]:

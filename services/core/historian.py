@@ -20,13 +20,14 @@ from dataclasses import dataclass, field
 
 from railswitch.schemas import (
     CONTRACT_VERSION,
-    Alarm,
     HISTORY_KINDS,
+    Alarm,
     Diagnosis,
     HistoryQuery,
     HistoryReply,
     Message,
     check_switch_id,
+    decode,
     encode,
     history_key,
 )
@@ -208,6 +209,10 @@ class Answer:
 
     replies: list[tuple[str, bytes]] = field(default_factory=list)
     error: str | None = None
+
+    def decoded(self) -> list[HistoryReply]:
+        """The replies as a client reads them (a store read directly answers as a historian would)."""
+        return [decode(HistoryReply, payload) for _, payload in self.replies]
 
 
 def switch_in_key(key: str) -> str | None:
