@@ -29,6 +29,7 @@ from railswitch.models.switch_diagnosis import (
     population,
 )
 from railswitch.models.health import Health
+from railswitch.models.isolation import OTHER_DIRECTION
 from railswitch.schemas import (
     FAULT_PARAMETERS,
     MODE_PARAMETERS,
@@ -143,20 +144,19 @@ class Diagnoser:
         accepted = switch.accept() if accept else {}
         if not accept:
             switch.restart_commissioning()
-        if self.on_state is not None:
-            self.on_state(switch_id, self._state(switch_id, switch))
+        self._saved(switch_id)
         return accepted
 
-    def _state(self, switch_id: str, switch: SwitchDiagnoser) -> dict:
-        last = self.last_throws.get(switch_id)
-        state = {**switch.state(), "alarms": self.books[switch_id].to_dict()}
+    def _saved(self, switch_id: str) -> None:
+        """The switch's whole state (its diagnoser's, alarms, maintenance, latest throw) handed to on_state."""
+        if self.on_state is None:
+            return
+        state = {**self.switches[switch_id].state(), "alarms": self.books[switch_id].to_dict()}
         if switch_id in self.maintenance:
             state["maintenance"] = self.maintenance[switch_id]
-        return state if last is None else {**state, "last_throw": list(last)}
-
-    def _saved(self, switch_id: str) -> None:
-        if self.on_state is not None:
-            self.on_state(switch_id, self._state(switch_id, self.switches[switch_id]))
+        if switch_id in self.last_throws:
+            state["last_throw"] = list(self.last_throws[switch_id])
+        self.on_state(switch_id, state)
 
     def acknowledge(self, switch_id: str, t_ns: int, alarm: str | None = None, note: str | None = None) -> list[Alarm]:
         """Acknowledge a switch's alarms (all, or the one named); the changes, none when there was nothing to
@@ -198,7 +198,7 @@ class Diagnoser:
         end_ns = throw_end_ns(throw)
         changes = []
         if not maintenance and outcome.verdict is not None:
-            conditions, judged = alarm_conditions(switch_id, outcome, throw.start.direction, self.books[switch_id])
+            conditions, judged = alarm_conditions(outcome, throw.start.direction, self.books[switch_id])
             changes = self.books[switch_id].observe(throw.start.throw_index, end_ns, conditions, judged)
         self.last_throws[switch_id] = (throw.start.throw_index, end_ns)
         self._saved(switch_id)
@@ -210,8 +210,7 @@ class Diagnoser:
         return DiagnosedThrow(throw, diagnosis, outcome.verdict, health, alarms)
 
 
-def alarm_conditions(switch_id: str, outcome: Outcome, direction: str, book: AlarmBook
-                     ) -> tuple[dict[str, Condition], set[str]]:
+def alarm_conditions(outcome: Outcome, direction: str, book: AlarmBook) -> tuple[dict[str, Condition], set[str]]:
     """What a throw's outcome raises alarms for, by alarm id, and the open alarms it judged: each present fault (its
     severity from its health: medium, high when watched, critical at its alarm; low while the switch is provisional),
     each anomaly (high) and each feature of this direction outside its band (low)."""
@@ -235,8 +234,7 @@ def alarm_conditions(switch_id: str, outcome: Outcome, direction: str, book: Ala
             conditions[f"feature:{feature['name']}:{direction}"] = Condition(
                 "feature", "low", f"{feature['name']} {feature['value']:.4g} {direction.replace('_', ' ')}, outside "
                 f"its commissioned band {feature['low']:.4g} … {feature['high']:.4g}", {feature["name"]: feature["value"]})
-    other = "right_to_left" if direction == "left_to_right" else "left_to_right"
-    judged = {alarm for alarm in book.alarms if not alarm.endswith(f":{other}")}
+    judged = {alarm for alarm in book.alarms if not alarm.endswith(f":{OTHER_DIRECTION[direction]}")}
     return conditions, judged
 
 
