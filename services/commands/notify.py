@@ -13,7 +13,7 @@ import threading
 from railswitch.services.adapters.webhook import Webhook, check_header, check_url
 from railswitch.services.adapters.zenoh_bus import (BusOptions, Inbox, Publishers, StatusReporter, declare_service,
                                                     open_session)
-from railswitch.services.commands.options import add_service_arguments, bounded, run_service
+from railswitch.services.commands.options import add_service_arguments, bounded, from_check, run_service
 from railswitch.services.core.intake import Intake
 from railswitch.services.core.notifier import Notifier
 
@@ -43,21 +43,11 @@ def run_notify(options: BusOptions, webhook: Webhook, *, stop: threading.Event, 
     return notifier.posted
 
 
-def _checked(check):
-    """An argparse converter from a check that raises ValueError with the one line to show."""
-    def convert(text: str):
-        try:
-            return check(text)
-        except ValueError as error:
-            raise argparse.ArgumentTypeError(str(error)) from None
-    return convert
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_service_arguments(parser, status=True)
-    parser.add_argument("--webhook", type=_checked(check_url), required=True, metavar="URL",
+    parser.add_argument("--webhook", type=from_check(check_url), required=True, metavar="URL",
                         help="where each alarm change is POSTed as JSON (http:// or https://)")
-    parser.add_argument("--header", type=_checked(check_header), action="append", default=[], metavar="'NAME: VALUE'",
+    parser.add_argument("--header", type=from_check(check_header), action="append", default=[], metavar="'NAME: VALUE'",
                         help="an extra header of every POST, e.g. 'Authorization: Bearer TOKEN' (repeatable)")
     parser.add_argument("--timeout", type=bounded(float, 0.1, 300.0, "s"), default=10.0, metavar="S",
                         help="seconds an attempt may take before it counts as failed and is tried again")

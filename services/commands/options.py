@@ -124,11 +124,18 @@ def note(text: str) -> str:
     return text
 
 
+def from_check(check: Callable[[str], object]) -> Callable[[str], object]:
+    """An argparse converter from a check that raises ValueError with the one line to show."""
+    def convert(text: str):
+        try:
+            return check(text)
+        except ValueError as error:
+            raise argparse.ArgumentTypeError(str(error)) from None
+    return convert
+
+
 def switch_id(text: str) -> str:
-    try:
-        return check_switch_id(text)
-    except ValueError as error:
-        raise argparse.ArgumentTypeError(str(error)) from None
+    return from_check(check_switch_id)(text)
 
 
 def shard(text: str) -> tuple[int, int]:
