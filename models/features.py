@@ -34,7 +34,8 @@ from railswitch.schemas.plant import PLANT_PARAMETERS
 
 FEATURES = ("throw_time_s", "peak_current_a", "mean_current_a", "energy_j", "lock_current_a", "speed_lag_rad_s")
 TOP_SHARE = 0.95  # of the reference's top speed: the stroke
-STILL_SHARE = 0.1  # of the reference's top speed: the motor has stopped (models/switch_diagnosis.py cut_short alike)
+STILL_SHARE = 0.1  # of the reference's top speed: the motor has stopped (a throw's end, and models/switch_diagnosis.py
+# cut_short: a throw that ends while the motor turns faster is cut short)
 SETTLE_S = 0.1  # after the reference first reaches its top speed: the start-up surge and the speed loop's overshoot
 SUPPLY_V = PLANT_PARAMETERS["motor.supply_v"].nominal
 # The band a commissioned switch's feature may wander within: BAND_SIGMAS of its spread over the commissioning throws,

@@ -48,7 +48,7 @@ from scipy import stats
 
 from railswitch.models.drive import DriveParams
 from railswitch.models.estimation import DRIVING_BOLT, WITHOUT, Estimate, HypothesisSpec, Measurement, ThrowEstimator
-from railswitch.models.features import FeatureTrends, throw_features
+from railswitch.models.features import STILL_SHARE, FeatureTrends, throw_features
 from railswitch.models.fault_set import (
     MAGNITUDE,
     RETURN_SIGMAS,
@@ -89,8 +89,7 @@ OBSTACLE_REACH_M = 0.024  # an obstacle drags the blades within two of its width
 GAP_TOLERANCE = 0.25  # of a sample period, for "the samples are evenly spaced"
 # A throw ends when the point machine detects its end position, earlier or later than its reference profile
 # ends; it is cut short only when it ends while the motor is still asked to turn (or, where measured, still
-# turns) at more than this share of its top speed.
-STILL_SHARE = 0.1
+# turns) at more than STILL_SHARE of its top speed (models/features.py: where the motor has stopped).
 # The throws a decided fault's size is combined over: those since it appeared, at most the latest TRACKED_THROWS (ten
 # days of a switch's throws). Each throw of a fault left in place adds to its switch's memory (about 1 kB as
 # ThrowVerdict.tracked keeps it; kept whole, 117 kB and without end); combined over so many, the model's error, whose
