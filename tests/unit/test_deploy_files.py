@@ -36,6 +36,16 @@ def test_every_service_command_parses_in_the_cli_and_connects_to_the_router(comp
     assert args.connect == ["tcp/router:7447"]
 
 
+def test_notify_runs_on_its_profile_with_the_webhook_from_the_environment(compose):
+    service = compose["services"]["notify"]
+    assert service["profiles"] == ["notify"]  # a plain `docker compose up` needs no webhook
+    command = [word.replace("${RAILSWITCH_WEBHOOK:?set RAILSWITCH_WEBHOOK, where alarm changes are POSTed}",
+                            "https://alarms.example/railswitch") for word in service["command"]]
+    assert command != service["command"]
+    args = build_parser().parse_args(command)
+    assert (args.command, args.connect, args.webhook) == ("notify", ["tcp/router:7447"], "https://alarms.example/railswitch")
+
+
 def test_recording_goes_to_a_volume(compose):
     out = build_parser().parse_args(compose["services"]["recorder"]["command"]).out
     mounts = {volume.split(":")[1] for volume in compose["services"]["recorder"]["volumes"]}

@@ -3,6 +3,7 @@ file its Zenoh configs name (deploy/secure templates; secrets from the git-ignor
 from __future__ import annotations
 
 import json
+import re
 from importlib.metadata import version
 from pathlib import Path, PurePosixPath
 
@@ -14,7 +15,8 @@ from railswitch.services.commands.cli import build_parser
 
 ROOT = Path(__file__).resolve().parents[2]
 TEMPLATES = ROOT / "deploy" / "secure"
-SERVICES = ["simulator", "diagnoser", "recorder", "historian"]
+SERVICES = ["simulator", "diagnoser", "recorder", "historian", "notify"]
+EXAMPLE_ENV = {"RAILSWITCH_WEBHOOK": "https://alarms.example/railswitch"}  # what compose takes from the environment
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +48,12 @@ def files_named_by(config: zenoh.Config) -> set[str]:
     return {path for path in named if path}
 
 
-def test_compose_runs_router_simulator_diagnoser_recorder_and_historian(compose):
+def interpolated(command: list[str]) -> list[str]:
+    """A command as compose runs it: each ${NAME:?message} replaced by the environment's value (EXAMPLE_ENV)."""
+    return [re.sub(r"\$\{(\w+):\?[^}]*\}", lambda m: EXAMPLE_ENV[m.group(1)], word) for word in command]
+
+
+def test_compose_runs_router_simulator_diagnoser_recorder_historian_and_notify(compose):
     assert set(compose["services"]) == {"router", *SERVICES}
 
 
@@ -64,7 +71,7 @@ def test_router_runs_the_secure_router_config(compose):
 
 @pytest.mark.parametrize("service", SERVICES)
 def test_every_service_command_parses_and_uses_its_own_zenoh_config_over_tls(compose, service):
-    args = build_parser().parse_args(compose["services"][service]["command"])  # exits on an unknown option
+    args = build_parser().parse_args(interpolated(compose["services"][service]["command"]))  # exits on a bad option
     assert args.command == service
     assert args.connect == ["tls/router:7447"]
     assert mounts(compose, service)[args.zenoh_config] == f"secrets/{service}.json5"
