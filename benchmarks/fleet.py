@@ -14,7 +14,9 @@ winding's resistance up 30 to 80 % (a cable or winding fault), the torque consta
 magnets) or the supply sagging to 60 to 85 % of what the drive needs at its busiest (the most of resistance times
 current plus back-EMF over the switch's last healthy throw, from its true own parameters): deep enough to saturate
 the drive for a good part of its start, by the plant's own figures (within about 15 % of the need it saturates for a moment
-and the motor lags its reference no more than on a healthy throw); and healthy switches that
+and the motor lags its reference no more than on a healthy throw), or a gearbox that binds at one point of the stroke
+(0.3 to 0.8 N·m more friction at the motor over about a tenth of the stroke, somewhere from 15 to 85 % of it); and
+healthy switches that
 go through maintenance (--maintenance), during which the team leaves a bolt loose for a few throws. Prints how many
 anomalies were reported (any throw after the change with "anomaly" among its faults and the changed quantity among
 its suspects), how many were reported as a known fault instead (the switch's latest diagnosis names a fault mode
@@ -55,7 +57,9 @@ class SwitchRun:
 
 
 OUT_OF_MODEL = {"motor.resistance_ohm": (1.3, 1.8), "motor.torque_constant_nm_a": (0.8, 0.92),
-                "motor.supply_v": (0.6, 0.85)}  # factors on the switch's own value (the supply: on what it needs)
+                "motor.supply_v": (0.6, 0.85),  # factors on the switch's own value (the supply: on what it needs)
+                "drive.binding_torque_nm": (0.3, 0.8)}  # N·m at the motor, about 1.5 to 4 A more current where it binds
+BINDING_AT = (0.15, 0.85)  # where along the rod's stroke (drive.binding_position)
 MAINTENANCE_THROWS = 4
 
 
@@ -67,7 +71,8 @@ class Unnamed:
     seed: int
     at: int  # the change's, or maintenance's first, throw
     quantity: str | None = None
-    factor: float = 1.0
+    factor: float = 1.0  # the binding gearbox's: its torque in N·m
+    position: float = 0.5  # the binding gearbox's
 
 
 def plan_unnamed(seed: int, anomalies: int, maintenance: int, throws: int, commissioning: int) -> list[Unnamed]:
@@ -77,7 +82,7 @@ def plan_unnamed(seed: int, anomalies: int, maintenance: int, throws: int, commi
         quantity = list(OUT_OF_MODEL)[k % len(OUT_OF_MODEL)]
         low, high = OUT_OF_MODEL[quantity]
         runs.append(Unnamed(f"a{k}", seed * 1000 + 700 + k, int(rng.integers(commissioning + 1, throws - 5)), quantity,
-                            float(rng.uniform(low, high))))
+                            float(rng.uniform(low, high)), float(rng.uniform(*BINDING_AT))))
     for k in range(maintenance):
         runs.append(Unnamed(f"m{k}", seed * 1000 + 900 + k,
                             int(rng.integers(commissioning + 1, throws - MAINTENANCE_THROWS - 3))))
@@ -102,7 +107,9 @@ def run_unnamed(runs: list[Unnamed], diagnoser: Diagnoser, plant, throws: int, n
         named, last, item = False, None, None
         for throw in range(throws):
             maintenance = run.quantity is None and run.at <= throw < run.at + MAINTENANCE_THROWS
-            if run.quantity is not None and throw == run.at:
+            if run.quantity == "drive.binding_torque_nm" and throw == run.at:
+                sim.set_own({**own, run.quantity: run.factor, "drive.binding_position": run.position})
+            elif run.quantity is not None and throw == run.at:
                 base = own[run.quantity] if run.quantity != "motor.supply_v" else needed_voltage(own, item.throw)
                 sim.set_own({**own, run.quantity: base * run.factor})
             if run.quantity is None and throw == run.at:
@@ -127,7 +134,7 @@ def run_unnamed(runs: list[Unnamed], diagnoser: Diagnoser, plant, throws: int, n
             reported += named
             as_known += last is not None and not last.anomalies and bool(set(last.present()) - {"anomaly"})
         if not quiet:
-            print(run.switch_id, run.quantity, round(run.factor, 3), "at", run.at, "named", named,
+            print(run.switch_id, run.quantity, round(run.factor, 3), round(run.position, 2), "at", run.at, "named", named,
                   "last", last.named() if last else None, flush=True)
         diagnoser.forget(run.switch_id)
     cases = sum(run.quantity is not None for run in runs)

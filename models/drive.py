@@ -27,6 +27,9 @@ class DriveParams:
     crank_radius_m: float = 0.244
     rod_left_m: float = 1.956  # rod position at the left dead centre
     linkage_ratio: float = 2.0
+    binding_torque_nm: float = 0.0  # a gearbox that binds at one point of the stroke: its extra friction at the motor
+    binding_position: float = 0.5  # where, as the share of the rod's stroke from the left dead centre
+    binding_width: float = 0.04  # over what share of the stroke (the standard deviation of its bell)
 
     @property
     def stroke_m(self) -> float:
@@ -49,6 +52,14 @@ def rod_kinematics(params: DriveParams, motor_angle_rad, omega):
     position = params.rod_left_m + params.crank_radius_m * (1.0 - ca.cos(crank))
     lever_m = params.crank_radius_m * ca.sin(crank) / params.gear_ratio
     return position, lever_m * omega, lever_m
+
+
+def binding_torque(params: DriveParams, motor_angle_rad, torque_nm, position):
+    """The extra friction torque, at the motor, of a gearbox that binds where the rod is at `position` (share of its
+    stroke): a bell of `torque_nm` at its height and `params.binding_width` wide. Nothing no mode of the reduced models
+    names (schemas/plant.py): an anomaly the plant can show."""
+    share = 0.5 * (1.0 - ca.cos(motor_angle_rad / params.gear_ratio))
+    return torque_nm * ca.exp(-0.5 * ((share - position) / params.binding_width) ** 2)
 
 
 def motor_angle_at_rod(params: DriveParams, rod_m: float) -> float:

@@ -22,7 +22,7 @@ import numpy as np
 
 from railswitch.models.adjuster import AdjusterParams, adjuster_energy, adjuster_force
 from railswitch.models.buffers import InPlace
-from railswitch.models.drive import DriveParams, adjuster_on_rod, rod_kinematics
+from railswitch.models.drive import DriveParams, adjuster_on_rod, binding_torque, rod_kinematics
 from railswitch.models.lock import LockParams, latched_hooks, lock_terms
 from railswitch.models.faults import FAULT_ORDER, ObstacleParams, bearing_weights, fault_vector, obstacle_profile, unpack
 from railswitch.models.motor import ControllerParams, MotorParams, controller, motor_derivatives
@@ -125,8 +125,9 @@ class Plant:
         hooks = x[2 * n + 4:2 * n + 6]
         faults = unpack(theta)
         own = dict(zip(PLANT_VARIABLES, ca.vertsplit(phi)))
+        binding = binding_torque(p.drive, angle, own["drive.binding_torque_nm"], own["drive.binding_position"])
         motor = replace(p.motor, resistance_ohm=own["motor.resistance_ohm"], supply_v=own["motor.supply_v"],
-                        coulomb_friction_nm=own["motor.coulomb_friction_nm"] + faults["drive_friction_nm"],
+                        coulomb_friction_nm=own["motor.coulomb_friction_nm"] + faults["drive_friction_nm"] + binding,
                         torque_constant_nm_a=own["motor.torque_constant_nm_a"],
                         emf_constant_v_s=own["motor.torque_constant_nm_a"])
         heel = own["rail.heel_flex_factor"]

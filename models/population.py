@@ -74,6 +74,9 @@ def draw_switch(seed: int) -> DrawnSwitch:
         "rail.chair_friction_coefficient": NOMINAL["rail.chair_friction_coefficient"] * lubrication * frost,
         "rail.chair_viscous_n_s_m": NOMINAL["rail.chair_viscous_n_s_m"] * np.exp(rng.normal(0.0, 0.05)),
         "rail.heel_flex_factor": NOMINAL["rail.heel_flex_factor"] * rng.normal(1.0, 0.05),
+        # a sound gearbox binds nowhere (drawn last, so the draws above stay those of every earlier release)
+        "drive.binding_torque_nm": NOMINAL["drive.binding_torque_nm"],
+        "drive.binding_position": NOMINAL["drive.binding_position"],
     }
     # each within its schema's limits (min and max of floats: np.clip on a scalar was half of a draw's time, and
     # the population's statistics draw 20 000 switches when a diagnoser starts)

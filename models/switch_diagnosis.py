@@ -48,7 +48,7 @@ from scipy import stats
 
 from railswitch.models.drive import DriveParams
 from railswitch.models.estimation import DRIVING_BOLT, WITHOUT, Estimate, HypothesisSpec, Measurement, ThrowEstimator
-from railswitch.models.features import STILL_SHARE, FeatureTrends, throw_features
+from railswitch.models.features import BAND_FLOOR, PROFILE_BINS, STILL_SHARE, FeatureTrends, stroke_profile, throw_features
 from railswitch.models.fault_set import (
     MAGNITUDE,
     RETURN_SIGMAS,
@@ -159,6 +159,17 @@ BEARING_REACH = 1.5
 # A throw no hypothesis explains is an anomaly: the best fit's residual (its MSE over its effective samples) beyond
 # MODEL_ERROR_MARGIN times what the switch's commissioning throws left, at the chi-square quantile of its effective
 # samples at FALSE_ALARM_RATE (models/isolation.py: the same test a fault's detection makes).
+# A gearbox that binds at one point of the stroke loads the motor there, and at the same motor angle whichever way the
+# switch throws; the reduced models have no such load and read it as an obstacle, a bearing or drive friction. Its
+# mark in the stroke's current profile against the commissioning throws' (models/features.py): in both directions a
+# rise above BAND_FLOOR of the commissioned peak current where it is highest, LOCAL times its mean rise over the
+# stroke (a load along the whole stroke raises it alike: drive friction evenly, a missing bearing, whose friction
+# follows the blades' speed, mid-stroke at about twice its mean; a bell a tenth of the stroke wide, about ten times),
+# the two highest within SAME_PLACE of the stroke of each other. A blade obstacle's lie the adjuster's free play apart,
+# on the rod twice 40 mm of its 488 mm stroke, 0.16 (0.12 beside the tightest bolt of BOLT_GRID); a binding gearbox's,
+# only the speed loop's lag apart (within 0.035 in the plant).
+LOCAL = 3.0
+SAME_PLACE = 0.06
 ANOMALOUS = "motor.resistance_ohm"
 AT_BOUND = 0.005
 SEASON = resistance_at(55.0) / resistance_at(-25.0)
@@ -844,6 +855,7 @@ class SwitchDiagnoser:
                            estimates=self._estimates())
         direction = throw.direction
         features = throw_features(throw.t_s, throw.signals, throw.reference, throw.duration_s, self.drive)
+        profile = stroke_profile(throw.t_s, throw.signals, throw.reference, self.drive)
         start_rail = self.rail_m if self.rail_m is not None else CLOSED_START_M[direction]
         m = measurement(throw, start_rail, self.drive)
         provisional = not self.baseline.complete
@@ -910,9 +922,9 @@ class SwitchDiagnoser:
         decision = self.decision()
         reason = self._reason(repaired, provisional, suspected if provisional and unchanged else [])
         if unchanged and not self.faults and not suspected:  # a healthy throw: the band's, until it has enough
-            self.trends.learn(direction, features)
-        feature_health = [] if provisional else self.trends.update(throw.index, direction, features)
-        anomalies = [] if provisional else self._anomalies(verdict)
+            self.trends.learn(direction, features, profile)
+        feature_health = [] if provisional else self.trends.update(throw.index, direction, features, profile)
+        anomalies = [] if provisional else [*self._anomalies(verdict), *self._binding()]
         if not anomalies:
             self.anomalous_since = None
         elif self.anomalous_since is None:
@@ -963,6 +975,27 @@ class SwitchDiagnoser:
             cause = "a supply sag that saturates the drive, or a shorted winding?"
         return [{"quantity": ANOMALOUS, "value": value, "commissioned": commissioned, "unit": "Ω",
                  "reason": f"winding resistance {value:.2f} Ω {why}: {cause}", "suspects": suspects}]
+
+    def _binding(self) -> list[dict]:
+        """An anomaly when the latest throw of each direction shows a load at one point of the stroke, at the same
+        place both ways (LOCAL, SAME_PLACE): a gearbox that binds there, whatever fault the fit reads it as."""
+        rises, shares = [], []
+        for direction in DIRECTIONS:
+            excess, band = self.trends.excess(direction), self.trends.band(direction, "peak_current_a")
+            if excess is None or band is None or not np.any(np.isfinite(excess)):
+                return []
+            at = int(np.nanargmax(excess))
+            if excess[at] < BAND_FLOOR * band[0] or excess[at] < LOCAL * max(float(np.nanmean(excess)), 0.0):
+                return []
+            rises.append(float(excess[at]))
+            shares.append((at + 0.5) / PROFILE_BINS)
+        if abs(shares[0] - shares[1]) > SAME_PLACE:
+            return []
+        return [{"quantity": "stroke_current_a", "value": float(np.mean(rises)), "commissioned": 0.0, "unit": "A",
+                 "suspects": ["drive.binding_torque_nm"],
+                 "reason": f"the current rises {np.mean(rises):.1f} A above its commissioned level at "
+                           f"{100.0 * np.mean(shares):.0f} % of the stroke both ways, a load at one motor angle (a blade "
+                           f"obstacle's would lie the adjuster's free play apart): a gearbox that binds there?"}]
 
     def _unexplained(self, verdict: ThrowVerdict) -> list[dict]:
         """An anomaly when no hypothesis explains the throw as well as the switch's commissioning throws were explained

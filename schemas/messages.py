@@ -247,7 +247,7 @@ class Anomaly(Message):
     """Something a throw shows that no fault mode names: a quantity of the switch's own (a nuisance) at the edge of
     what the population allows or far from its commissioned level, or a throw no hypothesis explains."""
 
-    quantity: Annotated[str, Field(max_length=64)]  # a plant parameter name, a feature, or "residual"
+    quantity: Annotated[str, Field(max_length=64)]  # a plant parameter name, "stroke_current_a" or "residual"
     value: float | None = None
     commissioned: float | None = None
     unit: Annotated[str, Field(max_length=16)] = ""

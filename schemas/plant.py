@@ -1,7 +1,7 @@
 """Per-switch build and environment parameters of the simulated plant: the names a user may set
 (`--plant NAME=VALUE`, scenario files, the truth channel), their units, nominal values and ranges.
 
-Names are `group.field` of the plant's parameter groups (motor, rail). The nominal values are the
+Names are `group.field` of the plant's parameter groups (motor, drive, rail). The nominal values are the
 plant's own defaults; a test holds the two to account.
 """
 import math
@@ -30,6 +30,11 @@ PLANT_PARAMETERS: dict[str, PlantParameter] = {
                        "Coulomb friction of motor and gearbox, at the motor shaft"),
         PlantParameter("motor.torque_constant_nm_a", "N·m/A", 0.2, 0.12, 0.24,
                        "torque constant (and back-EMF constant, in SI units the same); down to weakened magnets"),
+        PlantParameter("drive.binding_torque_nm", "N·m", 0.0, 0.0, 1.0,
+                       "extra friction of a gearbox that binds at one point of the stroke, at the motor shaft, at its"
+                       " height (a bell a tenth of the stroke wide at half height); 0 on a sound gearbox"),
+        PlantParameter("drive.binding_position", "1", 0.5, 0.05, 0.95,
+                       "where the gearbox binds, as the share of the rod's stroke from its left dead centre"),
         PlantParameter("rail.chair_friction_coefficient", "1", 0.02, 0.002, 0.15,
                        "slide-chair Coulomb friction coefficient: lubrication, dryness, ice"),
         PlantParameter("rail.chair_viscous_n_s_m", "N·s/m", 300.0, 100.0, 900.0, "rolling losses of each slide chair"),

@@ -213,7 +213,8 @@ class Diagnoser:
 def alarm_conditions(outcome: Outcome, direction: str, book: AlarmBook) -> tuple[dict[str, Condition], set[str]]:
     """What a throw's outcome raises alarms for, by alarm id, and the open alarms it judged: each present fault (its
     severity from its health: medium, high when watched, critical at its alarm; low while the switch is provisional),
-    each anomaly (high) and each feature of this direction outside its band (low)."""
+    each anomaly (high) and, on a switch with neither, one alarm for the features of this direction outside their
+    band (low): beside a fault they are its symptoms, one alarm each was noise in the control room."""
     conditions = {}
     states = {} if outcome.health is None else {name: p.state for name, p in outcome.health.parameters.items()}
     provisional = outcome.verdict is not None and outcome.verdict.provisional
@@ -229,11 +230,12 @@ def alarm_conditions(outcome: Outcome, direction: str, book: AlarmBook) -> tuple
         value = anomaly["value"]
         conditions[f"anomaly:{anomaly['quantity']}"] = Condition(
             "anomaly", "high", anomaly["reason"], {anomaly["quantity"]: value} if value is not None else {})
-    for feature in outcome.feature_health:
-        if feature["state"] == "outside":
-            conditions[f"feature:{feature['name']}:{direction}"] = Condition(
-                "feature", "low", f"{feature['name']} {feature['value']:.4g} {direction.replace('_', ' ')}, outside "
-                f"its commissioned band {feature['low']:.4g} … {feature['high']:.4g}", {feature["name"]: feature["value"]})
+    outside = [f for f in outcome.feature_health if f["state"] == "outside"]
+    if outside and not conditions:  # a fault or an anomaly explains its features; they would only repeat it
+        conditions[f"features:{direction}"] = Condition(
+            "feature", "low", f"{direction.replace('_', ' ')}: " + "; ".join(
+                f"{f['name']} {f['value']:.4g}, outside its commissioned band {f['low']:.4g} … {f['high']:.4g}"
+                for f in outside), {f["name"]: f["value"] for f in outside})
     judged = {alarm for alarm in book.alarms if not alarm.endswith(f":{OTHER_DIRECTION[direction]}")}
     return conditions, judged
 

@@ -2,6 +2,7 @@
 maintenance that teaches nothing. Switches are drawn from the population (unlike the model) and thrown through the
 plant with 1 % noise; the diagnoser is the real one, its state kept in real files."""
 import copy
+import re
 
 import pytest
 
@@ -104,3 +105,28 @@ def test_weakening_magnets_read_as_an_anomaly_that_names_them_not_as_a_silent_be
     assert "motor.torque_constant_nm_a" in last.suspects and "magnets" in last.reason
     if set(after[-1].faults) & {"missing_bearing", "drive_friction"}:  # read as friction too: the magnets first
         assert last.suspects[0] == "motor.torque_constant_nm_a", last.reason
+
+
+@pytest.mark.parametrize("torque, position", [(0.46, 0.33), (0.37, 0.71)])
+def test_a_gearbox_binding_at_one_point_reads_anomaly_naming_it_whatever_fault_the_fit_finds(diagnoser, plant,
+                                                                                             torque, position):
+    """The reduced models read a binding gearbox as an obstacle, a bearing or drive friction; the stroke's current
+    profile places its load at one motor angle both ways, where a blade obstacle's lies the free play apart."""
+    switch = Switch(diagnoser, plant, "binding", seed=823)
+    switch.throws(COMMISSIONED + 1)
+    switch.sim.set_own({**switch.own, "drive.binding_torque_nm": torque, "drive.binding_position": position})
+    after = [t.diagnosis for t in switch.throws(4)]
+    for d in after[1:]:  # from the first throw of the other direction on
+        binding = [a for a in d.anomalies if "drive.binding_torque_nm" in a.suspects]
+        assert binding and "anomaly" in d.faults, (d.named(), [a.reason for a in d.anomalies])
+        at = re.search(r"at (\d+) % of the stroke", binding[0].reason)
+        assert at and abs(int(at.group(1)) - 100 * position) <= 5, binding[0].reason
+
+
+def test_a_blade_obstacle_is_not_read_as_a_binding_gearbox(diagnoser, plant):
+    switch = Switch(diagnoser, plant, "obstacle", seed=824)
+    switch.throws(COMMISSIONED + 1)
+    switch.sim.set_faults({"obstacle_friction": 60_000.0, "obstacle_position": 1.09})
+    after = [t.diagnosis for t in switch.throws(4)]
+    assert "obstacle" in after[-1].faults, after[-1].named()
+    assert not [a for d in after for a in d.anomalies if "drive.binding_torque_nm" in a.suspects]

@@ -76,3 +76,22 @@ def test_a_book_read_back_from_its_state_goes_on_where_it_was():
     assert again.observe(2, 2, {"left_bolt": BOLT}) == []  # still latched and active: a repeat
     assert [(c.change, c.sequence) for c in again.acknowledge(3)] == [("acknowledged", 2)]
     assert AlarmBook.from_dict(None).alarms == {}  # a state saved before alarms were kept
+
+
+def _outside(name: str, value: float) -> dict:
+    return {"name": name, "direction": "left_to_right", "value": value, "mean": 2.0, "low": 1.8, "high": 2.2,
+            "slope_per_100": 0.0, "state": "outside"}
+
+
+def test_features_outside_their_band_raise_one_alarm_and_none_beside_a_fault():
+    from railswitch.models.switch_diagnosis import Outcome
+    from railswitch.services.core.fleet_diagnoser import alarm_conditions
+    features = [_outside("peak_current_a", 3.1), _outside("mean_current_a", 2.6),
+                {**_outside("throw_time_s", 5.0), "state": "ok"}]
+    alone = Outcome("nominal", None, None, None, feature_health=features)
+    conditions, _ = alarm_conditions(alone, "left_to_right", AlarmBook())
+    assert list(conditions) == ["features:left_to_right"]
+    assert conditions["features:left_to_right"].parameters == {"peak_current_a": 3.1, "mean_current_a": 2.6}
+    beside = Outcome("missing_bearing", None, None, None, faults=("missing_bearing",), feature_health=features)
+    conditions, _ = alarm_conditions(beside, "left_to_right", AlarmBook())
+    assert list(conditions) == ["missing_bearing"]  # the fault explains its features

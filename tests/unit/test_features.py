@@ -42,3 +42,25 @@ def test_a_commissioned_band_flags_a_feature_outside_it_and_follows_its_slope():
     again = FeatureTrends(needed=3)
     again.load(trends.to_dict())
     assert again.band("left_to_right", "peak_current_a") == (mean, low, high)
+
+
+def test_the_stroke_profile_places_a_load_by_the_rod_s_share_of_its_stroke_either_way():
+    from railswitch.models.drive import DriveParams
+    from railswitch.models.features import PROFILE_BINS, stroke_profile
+    drive = DriveParams()
+    angle = np.concatenate([[0.0], np.cumsum(0.5 * (REFERENCE(T)[1:] + REFERENCE(T)[:-1]) * np.diff(T))])
+    share = 0.5 * (1.0 - np.cos(np.minimum(angle / drive.gear_ratio, np.pi)))  # of a left-to-right throw
+    for direction, at in (("left_to_right", share), ("right_to_left", 1.0 - share)):
+        current = 1.5 + 2.0 * (np.abs(at - 0.3) < 0.02)  # a load where the rod is at 30 % of its stroke
+        reference = REFERENCE if direction == "left_to_right" else Reference(REFERENCE.t_s, -REFERENCE.velocity_rad_s)
+        profile = stroke_profile(T, MotorSignals(current, None, None), reference, drive)
+        assert len(profile) == PROFILE_BINS
+        assert abs((int(np.nanargmax(profile)) + 0.5) / PROFILE_BINS - 0.3) <= 1.0 / PROFILE_BINS, direction
+    trends = FeatureTrends(needed=2)
+    for _ in range(2):
+        trends.learn("left_to_right", {}, np.full(PROFILE_BINS, 1.5))
+    trends.update(20, "left_to_right", {}, profile)
+    assert abs(np.nanmax(trends.excess("left_to_right")) - 2.0) < 0.5
+    restored = FeatureTrends(needed=2)
+    restored.load(trends.to_dict())  # the state keeps the profiles
+    assert np.allclose(restored.excess("left_to_right"), trends.excess("left_to_right"), equal_nan=True)
