@@ -60,6 +60,8 @@ from railswitch.schemas.messages import (
     json_schema,
     key_expr,
     parse_key_expr,
+    RECENT_KIND,
+    recent_key,
 )
 
 __all__ = [
@@ -112,6 +114,8 @@ __all__ = [
     "json_schema",
     "key_expr",
     "parse_key_expr",
+    "RECENT_KIND",
+    "recent_key",
     "SEVERITIES",
     "AckCommand",
     "Alarm",

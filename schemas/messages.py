@@ -525,6 +525,15 @@ def key_expr(switch_id: str, kind: str) -> str:
     return f"{KEY_PREFIX}/{check_switch_id(switch_id)}/{kind}"
 
 
+RECENT_KIND = "recent"  # railswitch/<id>/recent: the recorders' queryable of a stream's recent throws, as records
+
+
+def recent_key(switch_id: str) -> str:
+    """The key of the recorders' recent throws of one switch, or of every switch for `*` (docs/contracts.md section 3,
+    Catching up): not a channel, nothing is published there; queries on it are answered with ThrowRecords."""
+    return f"{KEY_PREFIX}/{switch_id if switch_id == '*' else check_switch_id(switch_id)}/{RECENT_KIND}"
+
+
 def parse_key_expr(key: str) -> tuple[str, str]:
     """Inverse of key_expr: (switch_id, kind), or ValueError for any other key."""
     parts = key.split("/")

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import zenoh
 import zenoh.ext
 
-from railswitch.schemas import DEFAULT_ENDPOINT, KEY_PREFIX, SERVICE_PREFIX, Message, ServiceStatus, encode
+from railswitch.schemas import DEFAULT_ENDPOINT, KEY_PREFIX, SERVICE_PREFIX, Message, ServiceStatus, encode, recent_key
 
 if TYPE_CHECKING:  # the intake module imports this one
     from railswitch.services.core.intake import Intake
@@ -38,6 +38,7 @@ ELASTIC_LEASE_MS = 3000
 # that subscribers which were down, or start late, ask for; a heartbeat after new samples lets a live subscriber
 # notice a sample it missed and fetch it from the cache.
 HEARTBEAT_S = 1.0
+RECENT_QUERY_S = 5.0  # how long a diagnoser waits for the recorders' recent throws of a sample stream
 
 
 class BusError(RuntimeError):
@@ -203,17 +204,34 @@ class QueryInbox:
         self._queue: queue.SimpleQueue[zenoh.Query] = queue.SimpleQueue()
         self._queryable = session.declare_queryable(key, self._queue.put)
 
-    def answer(self, replies: Callable[[], list[tuple[str, bytes]]]) -> None:
-        """Reply to every waiting query with `replies()` (key, payload) that match it."""
+    def answer(self, replies: Callable[[str, dict[str, str]], list[tuple[str, bytes]]]) -> None:
+        """Reply to every waiting query with `replies(key expression, parameters)` (key, payload) that match it."""
         while True:
             try:
                 query = self._queue.get_nowait()
             except queue.Empty:
                 return
             with query:  # dropping a query tells the querier that this queryable is done
-                for key, payload in replies():
+                for key, payload in replies(str(query.key_expr), dict(query.parameters)):
                     if query.key_expr.intersects(key):
                         query.reply(key, payload, encoding=zenoh.Encoding.APPLICATION_JSON)
+
+
+def recent_throws(session: zenoh.Session, switch_id: str = "*", after_ns: int | None = None,
+                  timeout_s: float = RECENT_QUERY_S) -> list[Received]:
+    """The recorders' kept throws of a switch's sample stream (or of every switch) that ended after `after_ns`, as
+    records received now on railswitch/<id>/record (services/core/recent_throws.py): each throw once (several
+    recorders may keep it), in each switch's order."""
+    selector = recent_key(switch_id) + ("" if after_ns is None else f"?after_ns={after_ns}")
+    unique = {}
+    for item in query_all(session, selector, timeout_s):
+        switch = item.key.split("/")[1]
+        try:
+            order = (int(json.loads(item.payload)["t_end_ns"]), 0)
+        except (ValueError, KeyError, TypeError):
+            order = (-1, len(unique))  # junk from a foreign queryable: kept for the intake to count
+        unique.setdefault((switch, order), Received(f"{KEY_PREFIX}/{switch}/record", item.payload, item.arrived_s))
+    return [unique[key] for key in sorted(unique)]
 
 
 def query_all(session: zenoh.Session, key: str, timeout_s: float) -> list[Received]:

@@ -32,6 +32,7 @@ from railswitch.services.adapters.zenoh_bus import (
     instance_name,
     open_session,
     query_all,
+    recent_throws,
 )
 from railswitch.services.commands.options import add_model_argument, add_service_arguments, bounded, run_service
 from railswitch.services.core.fleet_diagnoser import Diagnoser
@@ -68,7 +69,7 @@ class ElasticPeers:
         """Apply joins and leaves (rebalancing once if the live set changed) and answer waiting state queries."""
         if self.members.poll():
             self.live.rebalance()
-        self.queries.answer(self.live.state_replies)
+        self.queries.answer(lambda key, parameters: self.live.state_replies())
 
 
 def run_diagnoser(options: BusOptions, *, model: str, shard: tuple[int, int] | None, stop: threading.Event,
@@ -87,7 +88,8 @@ def run_diagnoser(options: BusOptions, *, model: str, shard: tuple[int, int] | N
         diagnoser.warm_up()
         inbox = inbox or Inbox(session, INPUT_KEYS, CATCH_UP)  # before the state query: no state falls in between
         ownership = Membership(instance_name()) if shard is None else FixedShard(shard, instance_name())
-        live = LiveDiagnoser(diagnoser, publishers, ownership, known=baselines.known)
+        live = LiveDiagnoser(diagnoser, publishers, ownership, known=baselines.known,
+                             recover=lambda switch_id, after_ns: recent_throws(session, switch_id, after_ns))
         peers = ElasticPeers(session, live, ownership) if isinstance(ownership, Membership) else None
         log.info("model %s ready in %.1f s; %s; baselines in %s", model, time.monotonic() - started,
                  "shard %d/%d" % shard if shard else f"elastic, {len(ownership.members)} other diagnoser(s)",
@@ -96,6 +98,7 @@ def run_diagnoser(options: BusOptions, *, model: str, shard: tuple[int, int] | N
         if peers is not None:
             peers.joined()
         status = StatusReporter(publishers, "diagnoser", live.intake, status_s)
+        live.catch_up()  # the sample streams' throws that ended while no diagnoser listened, from the recorders
         for item in inbox.drain(stop):
             if peers is not None:
                 peers.poll()

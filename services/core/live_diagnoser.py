@@ -39,19 +39,25 @@ INPUT_KINDS = ("motor", "throw", "record", "commission", "ack", "maintenance", "
 EXPIRE_EVERY_S = 1.0
 # in every status, zeros too; `already_diagnosed`: throws a switch's state had seen (a cache's replay after a restart),
 # `missed`: throws lost for good (older than the publishers' caches when this diagnoser came back), by index gaps
+# `recovered`: throws of a sample stream this one had not heard, fetched from the recorders (Recover)
 COUNTERS = ("diagnosed", "taken_over", "held_expired", "failed", "commissions", "already_diagnosed", "missed",
-            "alarm_changes", "acknowledged", "maintenance")
+            "recovered", "alarm_changes", "acknowledged", "maintenance")
+# What the recorders keep of a switch's sample stream that ended after a time (ns), as received records
+# (services/adapters/zenoh_bus.py recent_throws; docs/contracts.md section 3, Catching up).
+Recover = Callable[[str, int], list[Received]]
 
 
 class LiveDiagnoser:
     """Feeds received samples, events and records through the throw cutter into the diagnoser."""
 
     def __init__(self, diagnoser: Diagnoser, publishers: Publishers | None, ownership: Ownership | None = None,
-                 known: Callable[[str], bool] | None = None, clock: Callable[[], float] = time.monotonic):
+                 known: Callable[[str], bool] | None = None, clock: Callable[[], float] = time.monotonic,
+                 recover: Recover | None = None):
         """The diagnoser's states go on the bus as well as to its own on_state (a BaselineStore on disk), and a
         switch met for the first time resumes from the latest state on the bus before its own stored_state.
         `known(switch_id)`: whether a switch has a stored state (a commission command for a switch neither seen nor
-        stored is refused). Without publishers nothing is published; without ownership every switch is served."""
+        stored is refused). `recover`: where the throws a switch's state skips are asked for before they are
+        reported missed. Without publishers nothing is published; without ownership every switch is served."""
         self.diagnoser = diagnoser
         self._save, self._load = diagnoser.on_state, diagnoser.stored_state
         diagnoser.on_state, diagnoser.stored_state = self._on_state, self._stored_state
@@ -70,6 +76,8 @@ class LiveDiagnoser:
         self._started: dict[str, float] = {}  # arrival of each switch's latest start event
         self._latest: dict[str, tuple[int, int]] = {}  # per switch: (throw index, end ns) this one last diagnosed
         self._unpublished: dict[str, dict] = {}  # states handed over by the diagnoser, not yet on the bus
+        self.recover = recover
+        self._recovering = False
         self._next_expiry = clock() + EXPIRE_EVERY_S
 
     @property
@@ -163,12 +171,41 @@ class LiveDiagnoser:
         if throw_end_ns(throw) <= last[1]:
             self.counts["already_diagnosed"] += 1
             return False
+        if index > last[0] + 1 and self.recover is not None and not self._recovering:
+            self._catch_up(switch_id, last[1], throw_end_ns(throw))
+            last = self.diagnoser.last_throws.get(switch_id, last)
+            if throw_end_ns(throw) <= last[1]:  # the recorders had it too
+                self.counts["already_diagnosed"] += 1
+                return False
         if index > last[0] + 1:
             self.counts["missed"] += index - last[0] - 1
             log.warning("%s throws %s missed: they ended while no diagnoser was listening, longer ago than the "
-                        "publisher keeps throws", switch_id,
+                        "publisher keeps throws (and no recorder kept them)", switch_id,
                         last[0] + 1 if index == last[0] + 2 else f"{last[0] + 1} to {index - 1}")
         return True
+
+    def catch_up(self) -> None:
+        """Diagnose what the recorders kept of the switches' sample streams that this one has not seen (a diagnoser
+        starting after all were down): each owned switch's throws newer than its state, in order."""
+        if self.recover is not None:
+            before = self.counts["diagnosed"]
+            for item in self.recover("*", 0):
+                self.handle(item)
+            self.counts["recovered"] += self.counts["diagnosed"] - before
+
+    def _catch_up(self, switch_id: str, after_ns: int, before_ns: int) -> None:
+        """Diagnose, in order, the throws of a switch that ended after its state's latest and before the throw at
+        hand, as far as the recorders kept them (a sample stream this one did not hear)."""
+        self._recovering = True
+        try:
+            for item in self.recover(switch_id, after_ns):
+                message = self.intake.message(item)
+                if isinstance(message, ThrowRecord) and message.switch_id == switch_id and message.t_end_ns < before_ns:
+                    self.counts["recovered"] += 1
+                    log.info("%s throw %d: recovered from the recorders", switch_id, message.throw_index)
+                    self._diagnose(throw_of_record(message), item.arrived_s)
+        finally:
+            self._recovering = False
 
     def _diagnosed(self, throw: CutThrow) -> DiagnosedThrow:
         """The diagnosis, or an unknown one saying why it failed: one throw must not stop a fleet's diagnoser. A

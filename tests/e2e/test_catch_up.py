@@ -26,26 +26,29 @@ IN_FLIGHT_S = 1.0  # longer than a diagnoser takes over the throws it has receiv
 
 
 class RecordTimes:
-    """When each record (switch, throw index) went by on the bus."""
+    """When each record (switch, throw index) went by on the bus; of a sample stream, when each throw's end event
+    did."""
 
     def __init__(self, session: zenoh.Session):
         self.arrived: dict[tuple[str, int], float] = {}
         self._lock = threading.Lock()
-        self._subscriber = session.declare_subscriber("railswitch/*/record", self._on_sample)
+        self._subscribers = [session.declare_subscriber("railswitch/*/record", self._on_sample),
+                             session.declare_subscriber("railswitch/*/throw", self._on_sample)]
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        record = json.loads(sample.payload.to_bytes())
-        with self._lock:
-            self.arrived[(record["switch_id"], record["throw_index"])] = time.monotonic()
+        message = json.loads(sample.payload.to_bytes())
+        if message.get("phase", "end") == "end":
+            with self._lock:
+                self.arrived[(message["switch_id"], message["throw_index"])] = time.monotonic()
 
     def between(self, start_s: float, end_s: float) -> set[tuple[str, int]]:
         with self._lock:
             return {throw for throw, at_s in self.arrived.items() if start_s <= at_s <= end_s}
 
 
-def simulator_args(endpoint: str, *extra: str) -> list[str]:
+def simulator_args(endpoint: str, *extra: str, records: bool = True) -> list[str]:
     return ["--connect", endpoint, *(a for s in SWITCHES for a in ("--switch-id", s)), "--throws", str(THROWS),
-            "--interval", str(INTERVAL_S), "--speed", str(SPEED), "--as-records", *extra]
+            "--interval", str(INTERVAL_S), "--speed", str(SPEED), *(["--as-records"] if records else []), *extra]
 
 
 def stored_diagnoses(db: Path) -> list[tuple[str, int]]:
@@ -87,6 +90,37 @@ def test_the_only_diagnoser_killed_and_restarted_diagnoses_every_throw_and_histo
     assert set(collector.decisions()) == everything
     stored = stored_diagnoses(db)
     assert sorted(stored) == sorted(everything)  # each once
+
+
+def test_a_sample_stream_s_throws_that_ended_while_the_only_diagnoser_was_down_come_from_the_recorder(tmp_path):
+    """The simulator streams samples and events, which no publisher's cache can replay in order; the recorder keeps
+    each switch's recent throws as records, and the restarted diagnoser diagnoses those it did not hear, once each,
+    before going on live."""
+    everything = {(s, i) for s in SWITCHES for i in range(THROWS)}
+    with live_bus(tmp_path) as (services, endpoint, session, collector):
+        records = RecordTimes(session)
+        watch = ServiceWatch(session, "diagnoser")
+        services.start("diagnoser", "--connect", endpoint, "--status-interval", "0.5")
+        services.start("recorder", "--connect", endpoint, "--out", str(tmp_path / "all.mcap"))
+        wait_ready(session, services, diagnoser=1, recorder=1)
+        simulator = services.start("simulator", *simulator_args(endpoint, records=False))
+        wait_for(lambda: len(collector.received) >= 2 * len(SWITCHES), 120, "the first throws' diagnoses")
+        second, while_down = outage(services, session, endpoint, records, down_s=2.0)
+        assert simulator.wait(120) == 0, services.log(simulator)
+        try:
+            wait_for(lambda: set(collector.decisions()) >= everything, 60, "a diagnosis of every throw")
+        except TimeoutError as error:
+            raise AssertionError(f"{error}: not diagnosed {sorted(everything - set(collector.decisions()))}; "
+                                 f"{services.log(second)[-3000:]}") from None
+        counters = watch.latest(instance_of(second)).counters
+        time.sleep(1.0)  # anything diagnosed twice would be by now
+        counts = collector.counts()
+    assert len(while_down) >= len(SWITCHES), "no throw ended while the diagnoser was down: the test shows nothing"
+    # those that ended before the new one subscribed came from the recorder (while_down runs on until it was ready)
+    assert counters["recovered"] >= len(SWITCHES) and counters["missed"] == 0, counters
+    # once each, but for a throw whose diagnosis the killed one published before saving its state (one a switch)
+    twice = [throw for throw, n in counts.items() if n > 1]
+    assert len(twice) <= len(SWITCHES) and all(counts[t] == 2 for t in twice), twice
 
 
 def test_throws_older_than_the_cache_are_reported_missed_with_their_indices(tmp_path):

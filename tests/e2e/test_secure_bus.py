@@ -41,10 +41,11 @@ MAY_PUBLISH = {  # the policy the router must enforce (deploy/secure/README.md)
     "recorder": set(),
     "operator": {"inject", "commission", "ack", "maintenance"},
     "notify": set(),
+    "reader": set(),
 }
 SERVICES = ("simulator", "replay", "diagnoser", "historian", "recorder", "notify")
 MAY_ANNOUNCE = {"simulator": {"simulator", "replay"}, "diagnoser": {"diagnoser"}, "historian": {"historian"},
-                "recorder": {"recorder"}, "operator": set(), "notify": {"notify"}}
+                "recorder": {"recorder"}, "operator": set(), "notify": {"notify"}, "reader": set()}
 # What a subscriber to switch data listens on: every switch's channel of one kind, and everything
 SWITCH_PATTERNS = tuple(f"railswitch/*/{topic}" for topic in SWITCH_TOPICS) + ("railswitch/**",)
 
@@ -294,11 +295,31 @@ def test_each_user_declares_liveliness_tokens_only_for_its_own_services(bus):
             session.close()
 
 
+def test_only_the_recorder_answers_for_a_stream_s_recent_throws(bus):
+    """Whoever answers railswitch/*/recent hands a restarted diagnoser throws to diagnose: only the recorder user may
+    (readers have a user of their own for that reason)."""
+    sessions = {user: bus.session(user) for user in USERS}
+    try:
+        queryables = [session.declare_queryable(  # noqa: F841 - kept declared while asked
+            "railswitch/sw1/recent", lambda query, user=user: query.reply("railswitch/sw1/recent", user.encode()))
+            for user, session in sessions.items()]
+        with bus.session("diagnoser") as asker:
+            def answered() -> set[str]:
+                return {reply.ok.payload.to_bytes().decode() for reply in asker.get("railswitch/*/recent", timeout=2.0)
+                        if reply.ok is not None}
+            wait_for(lambda: "recorder" in answered(), 10, "the recorder's answer")
+            time.sleep(0.5)
+            assert answered() == {"recorder"}
+    finally:
+        for session in sessions.values():
+            session.close()
+
+
 # -- the services themselves -----------------------------------------------------------------------
 def test_simulator_diagnoser_and_historian_processes_work_through_the_secured_router(bus, tmp_path):
     """Each service as its own user: the diagnosis reaches a reader, and the historian answers a reader's history
-    query (`railswitch history` as the recorder user)."""
-    with ServiceProcesses(tmp_path) as services, bus.session("recorder") as reader:
+    query (`railswitch history` as the reader user)."""
+    with ServiceProcesses(tmp_path) as services, bus.session("reader") as reader:
         collector = DiagnosisCollector(reader)
         services.start("diagnoser", "--zenoh-config", bus.config_file("diagnoser"), "--connect", bus.endpoint)
         services.start("historian", "--zenoh-config", bus.config_file("historian"), "--connect", bus.endpoint,
@@ -311,7 +332,7 @@ def test_simulator_diagnoser_and_historian_processes_work_through_the_secured_ro
 
         def history() -> list[dict]:
             answer = subprocess.run([sys.executable, "-m", "railswitch", "history", "sw2", "--kind", "diagnosis",
-                                     "--json", "--zenoh-config", bus.config_file("recorder"), "--connect",
+                                     "--json", "--zenoh-config", bus.config_file("reader"), "--connect",
                                      bus.endpoint, "--timeout", "5"], capture_output=True, text=True, timeout=60)
             assert answer.returncode == 0, answer.stderr
             return [json.loads(line) for line in answer.stdout.splitlines()]
@@ -336,3 +357,25 @@ def test_a_diagnoser_started_late_catches_up_from_the_simulators_cache_through_t
         wait_for(lambda: ("sw3", 0) in collector.decisions(), 90, "throw 0, published before the diagnoser ran")
         assert simulator.poll() is None, "the simulator (and its cache) must outlive the diagnoser's start"
     assert ("sw3", 0) in collector.decisions()
+
+
+def test_a_diagnoser_started_late_gets_a_sample_stream_s_throws_from_the_recorder_through_the_secured_router(
+        bus, tmp_path):
+    """A stream's throws that ended before any diagnoser ran come from the recorder's answer on railswitch/*/recent,
+    which the policy lets the recorder give and the diagnoser ask for."""
+    with ServiceProcesses(tmp_path) as services, bus.session("reader") as reader:
+        collector = DiagnosisCollector(reader)
+        services.start("recorder", "--zenoh-config", bus.config_file("recorder"), "--connect", bus.endpoint,
+                       "--out", str(tmp_path / "secure.mcap"))
+        wait_ready(reader, services, timeout_s=60, recorder=1)
+        simulator = services.start("simulator", "--zenoh-config", bus.config_file("simulator"), "--connect",
+                                   bus.endpoint, "--switch-id", "sw4", "--throws", "60", "--interval", "10",
+                                   "--speed", "20")
+        ended = threading.Event()
+        reader.declare_subscriber("railswitch/sw4/throw",
+                                  lambda sample: json.loads(sample.payload.to_bytes())["phase"] == "end" and ended.set())
+        wait_for(ended.is_set, 60, "the first throw's end")
+        services.start("diagnoser", "--zenoh-config", bus.config_file("diagnoser"), "--connect", bus.endpoint)
+        wait_for(lambda: ("sw4", 0) in collector.decisions(), 90, "throw 0, streamed before the diagnoser ran")
+        assert simulator.poll() is None, "the diagnoser must have started while the stream went on"
+    assert ("sw4", 0) in collector.decisions()

@@ -6,11 +6,12 @@ import logging
 
 import pytest
 
-from railswitch.schemas import encode, key_expr
+from railswitch.schemas import MotorSample, ThrowEvent, ThrowRecord, encode, key_expr
 from railswitch.services.adapters.baseline_store import BaselineStore
 from railswitch.services.adapters.zenoh_bus import Received
 from railswitch.services.core.fleet_diagnoser import Diagnoser
 from railswitch.services.core.live_diagnoser import LiveDiagnoser
+from railswitch.services.core.recent_throws import RecentThrows
 from tests.live import RecordSource
 
 
@@ -32,11 +33,11 @@ def records():
     return [source.next("sw1") for _ in range(8)]
 
 
-def live_diagnoser(tmp_path) -> tuple[LiveDiagnoser, Published]:
+def live_diagnoser(tmp_path, recover=None) -> tuple[LiveDiagnoser, Published]:
     store = BaselineStore("poly", tmp_path)
     published = Published()
     return LiveDiagnoser(Diagnoser("poly", on_state=store.save, stored_state=store.load), published,
-                         known=store.known), published
+                         known=store.known, recover=recover), published
 
 
 def send(live: LiveDiagnoser, *records) -> None:
@@ -64,7 +65,7 @@ def test_throws_older_than_the_cache_are_counted_and_logged_missed_by_index(tmp_
     assert again.counts["missed"] == 3
     assert [r.getMessage() for r in caplog.records if "missed" in r.getMessage()] == [
         "sw1 throws 2 to 4 missed: they ended while no diagnoser was listening, longer ago than the publisher "
-        "keeps throws"]
+        "keeps throws (and no recorder kept them)"]
 
 
 def test_a_switch_whose_source_restarted_goes_on_without_a_missed_report(tmp_path, records):
@@ -78,3 +79,74 @@ def test_a_switch_whose_source_restarted_goes_on_without_a_missed_report(tmp_pat
     send(again, *renumbered)
     assert published.diagnosed == [("sw1", 0), ("sw1", 1)]
     assert again.counts["missed"] == 0 and again.counts["already_diagnosed"] == 0
+
+
+def stream_of(record: ThrowRecord) -> list:
+    """The record as its unit would stream it: start event, one sample per time (seq from the start's nanoseconds
+    over the sample period), end event."""
+    start = ThrowEvent(switch_id=record.switch_id, throw_index=record.throw_index, direction=record.direction,
+                       phase="start", t_ns=record.t_start_ns, reference_t_s=record.reference_t_s,
+                       reference_velocity_rad_s=record.reference_velocity_rad_s)
+    first = record.t_start_ns // (record.t_offset_ns[1] - record.t_offset_ns[0])
+    samples = [MotorSample(switch_id=record.switch_id, seq=first + k, t_ns=record.t_start_ns + offset,
+                           current_a=record.current_a[k], angle_rad=record.angle_rad[k],
+                           velocity_rad_s=record.velocity_rad_s[k]) for k, offset in enumerate(record.t_offset_ns)]
+    return [start, *samples, start.model_copy(update={"phase": "end", "t_ns": record.t_end_ns})]
+
+
+def stream(live: LiveDiagnoser, *records: ThrowRecord) -> None:
+    for record in records:
+        for message in stream_of(record):
+            live.handle(Received(key_expr(record.switch_id, "throw" if isinstance(message, ThrowEvent) else "motor"),
+                                 encode(message), 0.0))
+
+
+def recorders(recent: RecentThrows):
+    """What the diagnoser's recover gets from the recorders on the bus (zenoh_bus.recent_throws): their kept throws
+    of a switch that ended after a time, as records."""
+    def recover(switch_id: str, after_ns: int) -> list[Received]:
+        return [Received(key.replace("/recent", "/record"), payload, 0.0)
+                for key, payload in recent.replies({"after_ns": str(after_ns)})
+                if switch_id == "*" or key.split("/")[1] == switch_id]
+    return recover
+
+
+def test_a_stream_s_throws_that_no_diagnoser_heard_are_recovered_from_the_recorder_in_order(tmp_path, records):
+    """The only diagnoser of a sample stream is down for throws 2 to 4; the recorder heard them. The restarted one
+    diagnoses them from the recorder's before the next live throw, and reports none missed."""
+    recent = RecentThrows(keep_s=600.0)
+    for record in records:
+        for message in stream_of(record):
+            recent.feed(message)
+    first, _ = live_diagnoser(tmp_path)
+    stream(first, *records[:2])
+    again, published = live_diagnoser(tmp_path, recover=recorders(recent))
+    stream(again, *records[5:7])
+    assert published.diagnosed == [("sw1", i) for i in range(2, 7)]
+    assert again.counts["recovered"] == 3 and again.counts["missed"] == 0
+
+
+def test_a_diagnoser_starting_after_all_were_down_diagnoses_what_the_recorder_kept_since_its_state(tmp_path, records):
+    recent = RecentThrows(keep_s=600.0)
+    for record in records[:6]:
+        for message in stream_of(record):
+            recent.feed(message)
+    first, _ = live_diagnoser(tmp_path)
+    stream(first, *records[:3])
+    again, published = live_diagnoser(tmp_path, recover=recorders(recent))
+    again.catch_up()
+    assert published.diagnosed == [("sw1", 3), ("sw1", 4), ("sw1", 5)]
+    assert again.counts["recovered"] == 3 and again.counts["already_diagnosed"] == 3
+
+
+def test_throws_the_recorder_no_longer_keeps_are_reported_missed(tmp_path, records):
+    recent = RecentThrows(keep_s=15.0)  # throws end 10 s apart: it keeps the latest two
+    for record in records[:6]:
+        for message in stream_of(record):
+            recent.feed(message)
+    first, _ = live_diagnoser(tmp_path)
+    stream(first, *records[:1])
+    again, published = live_diagnoser(tmp_path, recover=recorders(recent))
+    stream(again, *records[6:7])
+    assert published.diagnosed == [("sw1", 4), ("sw1", 5), ("sw1", 6)]
+    assert again.counts["recovered"] == 2 and again.counts["missed"] == 3
