@@ -4,7 +4,7 @@ import json
 import re
 from collections.abc import Iterator
 from functools import cache
-from typing import Annotated, Literal, Self, TypeVar
+from typing import Annotated, Generic, Literal, NamedTuple, Self, TypeVar
 
 from pydantic import (
     AfterValidator,
@@ -561,7 +561,16 @@ def encode(msg: BaseModel) -> bytes:
     return msg.model_dump_json().encode()
 
 
-def decode_counted(model_cls: type[M], data: bytes) -> tuple[M, list[str]]:
+class Counted(NamedTuple, Generic[M]):
+    """A decoded payload: the message, what of the payload this version does not know, and the message as this
+    version encodes it (for a store that keeps it: encoding it again would only cost time)."""
+
+    message: M
+    unknown: list[str]
+    encoded: bytes
+
+
+def decode_counted(model_cls: type[M], data: bytes) -> Counted[M]:
     """decode, and what of the payload this version does not know, as names to count (docs/contracts.md,
     "Changing the contract"): every unknown field, nested ones by their dotted path (`estimate.since`, list
     items unnumbered: `hypotheses.note`), and `contract=N` when the payload was written to a newer contract.
@@ -570,10 +579,11 @@ def decode_counted(model_cls: type[M], data: bytes) -> tuple[M, list[str]]:
     holds nothing unknown. Any other is parsed a second time, by the JSON parser pydantic validated it with (it
     takes all the validator took), to see what validation dropped: models keep only what they know."""
     message = decode(model_cls, data)
-    unknown = [] if encode(message) == data else sorted(set(_unknown_fields(message, from_json(data))))
+    encoded = encode(message)
+    unknown = [] if encoded == data else sorted(set(_unknown_fields(message, from_json(data))))
     if isinstance(message, Message) and message.contract > CONTRACT_VERSION:
         unknown.append(f"contract={message.contract}")
-    return message, unknown
+    return Counted(message, unknown, encoded)
 
 
 @cache

@@ -3,12 +3,14 @@ historians write at once and Grafana, psql or pandas read.
 
 Table `railswitch_history` holds what SQLite's `history` does, keyed by (switch_id, kind, t_ns, throw_index):
 the key makes a message that two historians (or one, twice) write one row, and serves a switch's latest rows of
-a kind. A row stays whole in its page up to 8160 bytes (toast_tuple_target; a diagnosis is some 4 kB) rather than
-having its payload compressed into the TOAST table beyond 2 kB, PostgreSQL's default: reading a switch's latest
-1000 diagnoses then fetches no TOAST chunks and decompresses nothing, which took most of such a query's time. `railswitch_schema_version` says which layout the database has. Our own names leave the server's other
-tables alone. A batch is copied into a temporary table and inserted from there in key order with ON CONFLICT DO
-NOTHING: one round trip for the rows, and two historians writing the same rows take their locks in the same
-order, so neither waits for the other in a deadlock.
+a kind. A row stays whole in its page up to WHOLE_ROW bytes (toast_tuple_target; a diagnosis is some 4 kB) rather
+than having its payload compressed, or moved to the TOAST table, beyond 2 kB, PostgreSQL's default: reading a
+switch's latest 1000 diagnoses then fetches no TOAST chunks and decompresses nothing, which took most of such a
+query's time. `railswitch_schema_version` says which layout the database has. Our own names leave the server's
+other tables alone. A batch is copied into a temporary table and inserted from there in key order with ON CONFLICT
+DO NOTHING: one round trip for the rows, and two historians writing the same rows take their locks in the same
+order, so neither waits for the other in a deadlock. The temporary table keeps rows whole too: a value it
+compressed would go into the history compressed, and compressing every diagnosis took most of a write's time.
 
 A lost connection raises HistoryDbError and is opened again by the next call, so the historian keeps a batch it
 could not write and writes it once the server is back.
@@ -39,6 +41,7 @@ SCHEMA_VERSION = 2
 READABLE_VERSIONS = (1, SCHEMA_VERSION)
 TABLE = "railswitch_history"
 VERSION_TABLE = "railswitch_schema_version"
+WHOLE_ROW = 8160  # bytes: a row up to this size stays whole and uncompressed in its page (toast_tuple_target)
 INCOMING = "railswitch_incoming"  # a connection's own temporary table, a batch on its way in
 SCHEMA = f"""
 CREATE TABLE {VERSION_TABLE} (version integer NOT NULL);
@@ -50,7 +53,7 @@ CREATE TABLE {TABLE} (
     t_ns bigint NOT NULL,
     payload text NOT NULL,
     PRIMARY KEY (switch_id, kind, t_ns, throw_index)
-) WITH (toast_tuple_target = 8160)
+) WITH (toast_tuple_target = {WHOLE_ROW})
 """
 MIGRATIONS = {1: f"""
 ALTER TABLE {TABLE} DROP CONSTRAINT IF EXISTS {TABLE}_kind_check;
@@ -135,7 +138,8 @@ class PostgresHistory(HistoryStore):
             db = self._connection()
             if not self._incoming_ready:
                 db.execute(f"CREATE TEMPORARY TABLE IF NOT EXISTS {INCOMING} (switch_id text, kind text, "
-                           "throw_index bigint, t_ns bigint, payload text) ON COMMIT DELETE ROWS")
+                           f"throw_index bigint, t_ns bigint, payload text) WITH (toast_tuple_target = {WHOLE_ROW}) "
+                           "ON COMMIT DELETE ROWS")
                 self._incoming_ready = True
             with db.transaction(), db.cursor() as cursor:
                 with cursor.copy(f"COPY {INCOMING} ({COLUMNS}) FROM STDIN") as copy:

@@ -189,7 +189,7 @@ class RecordingReader:
                     self.skipped["unknown topic"] += 1
                     continue
                 try:
-                    message, unknown = decode_counted(CHANNEL_MODELS[kind], record.data)
+                    message, unknown, _ = decode_counted(CHANNEL_MODELS[kind], record.data)
                 except MessageError as e:
                     self.skipped[str(e)] += 1
                     continue

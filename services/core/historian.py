@@ -28,7 +28,6 @@ from railswitch.schemas import (
     Message,
     check_switch_id,
     decode,
-    encode,
     history_key,
 )
 from railswitch.schemas.history import MAX_TIME_NS
@@ -137,15 +136,16 @@ class Historian:
 
     def row(self, item: Received) -> HistoryRow | None:
         """The history row of a received payload, or None (counted when it was junk)."""
-        message = self.intake.message(item)
-        if message is None:
+        read = self.intake.read(item)
+        if read is None:
             return None
+        message = read.message
         kind = item.key.rsplit("/", 1)[1]
         t_ns = message_time(message)
         index = message_index(message)
         if t_ns > MAX_TIME_NS or index > MAX_TIME_NS:
             return self.intake.reject(f"{kind}: time or throw index beyond 64 bits", item.key)
-        row = HistoryRow(message.switch_id, kind, index, t_ns, encode(message).decode())
+        row = HistoryRow(message.switch_id, kind, index, t_ns, read.encoded.decode())
         owner = self.ownership.owner(message.switch_id)
         if owner == self.ownership.me:
             return row

@@ -10,9 +10,10 @@ from __future__ import annotations
 import logging
 from collections import Counter
 from collections.abc import Callable, Container
+from functools import cache
 
-from railswitch.schemas import (CHANNEL_MODELS, Message, MessageError, MotorSample, ThrowRecord, decode_counted,
-                               parse_key_expr)
+from railswitch.schemas import (CHANNEL_MODELS, Counted, Message, MessageError, MotorSample, ThrowRecord,
+                               decode_counted, parse_key_expr)
 from railswitch.schemas import SERVICE_PREFIX
 from railswitch.services.adapters.zenoh_bus import Received
 
@@ -22,6 +23,12 @@ MAX_PAYLOAD_BYTES_OF = {"record": 4 << 20}
 RESYNC_AFTER = {"motor": 50, "record": 3}  # in a row behind a switch's clock before following the new clock
 MAX_INT64 = 2**63 - 1  # times (ns: up to the year 2262) and counters beyond it fit no array, file or database
 COUNTS = ("t_ns", "t_start_ns", "t_end_ns", "throw_index", "seq")  # a record's offsets are within its times
+
+
+@cache
+def counts_of(model_cls: type[Message]) -> tuple[str, ...]:
+    """The COUNTS a kind of message has (asking a pydantic model for a field it lacks costs more than its check)."""
+    return tuple(name for name in COUNTS if name in model_cls.model_fields)
 
 
 class Intake:
@@ -40,6 +47,11 @@ class Intake:
 
     def message(self, item: Received) -> Message | None:
         """The valid message in item, or None (counted when it was junk rather than unwanted)."""
+        read = self.read(item)
+        return None if read is None else read.message
+
+    def read(self, item: Received) -> Counted | None:
+        """The valid message in item with its encoding, or None (counted when it was junk rather than unwanted)."""
         if item.key.startswith(SERVICE_PREFIX + "/"):
             return None  # service status and liveliness are not switch data
         self.received += 1
@@ -53,21 +65,22 @@ class Intake:
         if len(item.payload) > limit:
             return self.reject(f"{kind}: payload over {limit >> 20} MiB", item.key)
         try:
-            message, unknown = decode_counted(CHANNEL_MODELS[kind], item.payload)
+            read = decode_counted(CHANNEL_MODELS[kind], item.payload)
         except MessageError as error:
             return self.reject(f"{kind}: {error}", item.key)
+        message = read.message
         if message.switch_id != switch_id:
             return self.reject(f"{kind}: switch_id differs from the key", item.key)
-        if any((getattr(message, name, None) or 0) > MAX_INT64 for name in COUNTS):
+        if any((getattr(message, name) or 0) > MAX_INT64 for name in counts_of(type(message))):
             return self.reject(f"{kind}: time or throw index beyond 64 bits", item.key)
         if isinstance(message, MotorSample) and not self._in_order("motor", switch_id, message.t_ns):
             return self.reject("motor: time not after the previous sample's (repeated or going back)", item.key)
         if isinstance(message, ThrowRecord) and not self._in_order("record", switch_id, message.t_start_ns):
             return self.reject("record: start not after the previous record's (repeated or going back)", item.key)
-        for name in unknown:  # a newer publisher's: read past, counted per name
+        for name in read.unknown:  # a newer publisher's: read past, counted per name
             self._count_once(self.ignored, f"{kind}: {name}", item.key,
                              "ignoring what this version does not know on %s: %s (further ones are counted)")
-        return message
+        return read
 
     def _in_order(self, kind: str, switch_id: str, t_ns: int) -> bool:
         """Sample (and record) times of a switch only go forward: a repeated record is a unit's retried upload.

@@ -66,6 +66,22 @@ def test_two_historians_writing_the_same_rows_at_once_store_each_once_and_lose_n
     assert sum(c["written"] for c in opened) == len(items)
 
 
+def test_a_diagnosis_with_every_hypothesis_is_stored_whole_and_uncompressed(pg_url):
+    """A diagnosis as large as the diagnoser's (every hypothesis filled in, some 4 kB) stays in its row as it came,
+    through the batch's temporary table too: reading a switch's latest diagnoses decompresses nothing."""
+    from benchmarks.historian import fleet_payloads
+
+    items = fleet_payloads(20, seed=0)
+    assert min(len(i.payload) for i in items if i.key.endswith("/diagnosis")) > 3000  # beyond PostgreSQL's 2 kB
+    with open_history(pg_url) as db:
+        assert Historian(db).write(items) == len(items)
+    with psycopg.connect(pg_url) as db:
+        stored = db.execute("SELECT kind, pg_column_compression(payload), octet_length(payload) = "
+                            "pg_column_size(payload) - 4 FROM railswitch_history").fetchall()
+    assert len(stored) == len(items)
+    assert all(compression is None and whole for _, compression, whole in stored), stored
+
+
 def test_the_history_command_answers_the_same_from_postgresql_as_from_sqlite(tmp_path, pg_url):
     items = messages(SWITCHES[:2], range(30))
     for target in (tmp_path / "history.sqlite", pg_url):

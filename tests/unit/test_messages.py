@@ -231,9 +231,10 @@ def test_bad_reference_profile_rejected(
 def test_unknown_fields_are_ignored_and_named_and_messages_frozen() -> None:
     """A newer publisher's extra field neither silences an older subscriber nor passes through unseen."""
     payload = json.dumps(MOTOR.model_dump() | {"unit_serial": "PM-4711", "torque_nm": 1.0}).encode()
-    message, extras = decode_counted(MotorSample, payload)
+    message, extras, encoded = decode_counted(MotorSample, payload)
     assert message == MOTOR and extras == ["torque_nm", "unit_serial"]
     assert "unit_serial" not in encode(message).decode()  # what we pass on is what we understood
+    assert encoded == encode(message)  # what a store keeps of it, too
     with pytest.raises(ValidationError, match="frozen"):
         MOTOR.seq = 8  # type: ignore[misc]
 
@@ -275,17 +276,17 @@ def with_extras(payload: dict) -> dict:
 )
 def test_extra_fields_at_any_depth_are_ignored_and_named_once_by_their_dotted_path(msg, nested) -> None:
     """Two hypotheses carrying the field name it once: the count is of payloads, not of objects in them."""
-    message, unknown = decode_counted(type(msg), json.dumps(with_extras(json.loads(encode(msg)))).encode())
+    message, unknown, _ = decode_counted(type(msg), json.dumps(with_extras(json.loads(encode(msg)))).encode())
     assert message == msg
     assert unknown == [*(f"{name}.unit_serial" for name in nested), "unit_serial"]
 
 
 def test_a_newer_contract_is_read_as_far_as_known_and_named() -> None:
     payload = json.dumps(MOTOR.model_dump() | {"contract": CONTRACT_VERSION + 1, "torque_nm": 1.0}).encode()
-    message, unknown = decode_counted(MotorSample, payload)
+    message, unknown, _ = decode_counted(MotorSample, payload)
     assert message.current_a == MOTOR.current_a and message.contract == CONTRACT_VERSION + 1
     assert unknown == ["torque_nm", f"contract={CONTRACT_VERSION + 1}"]
-    assert decode_counted(MotorSample, encode(MOTOR)) == (MOTOR, [])
+    assert decode_counted(MotorSample, encode(MOTOR)) == (MOTOR, [], encode(MOTOR))
 
 
 @pytest.mark.parametrize(
@@ -447,7 +448,7 @@ SEVERAL = Diagnosis.model_validate(DIAGNOSIS.model_dump() | {
 
 
 def test_an_older_reader_reads_a_diagnosis_of_several_faults_as_its_newest_and_counts_what_it_does_not_know() -> None:
-    older, unknown = decode_counted(OlderDiagnosis, encode(SEVERAL))
+    older, unknown, _ = decode_counted(OlderDiagnosis, encode(SEVERAL))
     assert older.decision == "left_bolt" and older.estimate == BOLT_ESTIMATE
     assert older.commissioning.state == "commissioned"
     assert unknown == ["anomalies", "commissioning.accepted", "commissioning.standing", "estimates", "faults", "features",
