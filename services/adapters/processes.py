@@ -70,12 +70,15 @@ class ServiceProcesses:
         if exc_type is not None and issubclass(exc_type, Exception):
             self.print_logs()
 
-    def print_logs(self, lines: int = 30) -> None:
-        """The last lines of every child's log, on stderr: what a failed run (a test on CI, say) needs to be read
-        after its scratch directory is gone."""
+    def print_logs(self, lines: int = 30, first: int = 15) -> None:
+        """The first and last lines of every child's log, on stderr: what a failed run (a test on CI, say) needs to
+        be read after its scratch directory is gone (how a service started, its peers and models, and how it ended)."""
         for _, path, process in self.started:
-            print(f"--- {path.name} (pid {process.pid}, exit code {process.returncode}), last {lines} lines:",
-                  self.log(process, lines), sep="\n", file=sys.stderr)
+            text = self.log(process).splitlines()
+            shown = text if len(text) <= first + lines else [*text[:first], f"[... {len(text) - first - lines} "
+                                                             "lines ...]", *text[-lines:]]
+            print(f"--- {path.name} (pid {process.pid}, exit code {process.returncode}), first {first} and last "
+                  f"{lines} lines:", *shown, sep="\n", file=sys.stderr)
 
 
 def instance_of(process: subprocess.Popen) -> str:
