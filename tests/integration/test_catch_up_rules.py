@@ -101,6 +101,15 @@ def stream(live: LiveDiagnoser, *records: ThrowRecord) -> None:
                                  encode(message), 0.0))
 
 
+def heard(records: list, keep_s: float = 600.0) -> RecentThrows:
+    """A recorder's recent throws after it heard these records' throws as sample streams."""
+    recent = RecentThrows(keep_s=keep_s)
+    for record in records:
+        for message in stream_of(record):
+            recent.feed(message)
+    return recent
+
+
 def recorders(recent: RecentThrows):
     """What the diagnoser's recover gets from the recorders on the bus (zenoh_bus.recent_throws): their kept throws
     of a switch that ended after a time, as records."""
@@ -114,10 +123,7 @@ def recorders(recent: RecentThrows):
 def test_a_stream_s_throws_that_no_diagnoser_heard_are_recovered_from_the_recorder_in_order(tmp_path, records):
     """The only diagnoser of a sample stream is down for throws 2 to 4; the recorder heard them. The restarted one
     diagnoses them from the recorder's before the next live throw, and reports none missed."""
-    recent = RecentThrows(keep_s=600.0)
-    for record in records:
-        for message in stream_of(record):
-            recent.feed(message)
+    recent = heard(records)
     first, _ = live_diagnoser(tmp_path)
     stream(first, *records[:2])
     again, published = live_diagnoser(tmp_path, recover=recorders(recent))
@@ -127,10 +133,7 @@ def test_a_stream_s_throws_that_no_diagnoser_heard_are_recovered_from_the_record
 
 
 def test_a_diagnoser_starting_after_all_were_down_diagnoses_what_the_recorder_kept_since_its_state(tmp_path, records):
-    recent = RecentThrows(keep_s=600.0)
-    for record in records[:6]:
-        for message in stream_of(record):
-            recent.feed(message)
+    recent = heard(records[:6])
     first, _ = live_diagnoser(tmp_path)
     stream(first, *records[:3])
     again, published = live_diagnoser(tmp_path, recover=recorders(recent))
@@ -140,10 +143,7 @@ def test_a_diagnoser_starting_after_all_were_down_diagnoses_what_the_recorder_ke
 
 
 def test_throws_the_recorder_no_longer_keeps_are_reported_missed(tmp_path, records):
-    recent = RecentThrows(keep_s=15.0)  # throws end 10 s apart: it keeps the latest two
-    for record in records[:6]:
-        for message in stream_of(record):
-            recent.feed(message)
+    recent = heard(records[:6], keep_s=15.0)  # throws end 10 s apart: it keeps the latest two
     first, _ = live_diagnoser(tmp_path)
     stream(first, *records[:1])
     again, published = live_diagnoser(tmp_path, recover=recorders(recent))
