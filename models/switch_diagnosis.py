@@ -541,6 +541,10 @@ class Outcome:
     feature_health: list[dict] = field(default_factory=list)  # once commissioned: FeatureTrends.update's
     anomalies: list[dict] = field(default_factory=list)  # what no fault mode names (SwitchDiagnoser._anomalies)
 
+    def named(self) -> str:
+        """The present faults joined by '+', nominal, or unknown: as Diagnosis.named says it."""
+        return "+".join(self.faults) or ("unknown" if self.decision == "unknown" else "nominal")
+
 
 class SwitchDiagnoser:
     """Diagnoses one switch throw by throw; holds its baseline, present faults, latest verdicts and health."""

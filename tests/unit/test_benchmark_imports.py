@@ -37,3 +37,14 @@ def test_the_papers_estimator_takes_every_argument_the_diagnosis_passes_its_fits
     ours = inspect.signature(ThrowEstimator.fit).parameters
     theirs = inspect.signature(PaperEstimator.fit).parameters
     assert list(theirs) == list(ours)
+
+
+def test_a_switch_s_outcome_names_its_faults_as_a_diagnosis_does():
+    """benchmarks.diagnosis judges the paper's estimator and ours by the Outcome of a SwitchDiagnoser, as the others
+    judge a Diagnosis, with named() (its absence once stopped benchmarks.diagnosis at its last part)."""
+    from railswitch.models.switch_diagnosis import Outcome
+
+    assert Outcome("left_bolt", None, None, None, faults=("left_bolt", "missing_bearing")).named() == \
+        "left_bolt+missing_bearing"
+    assert Outcome("nominal", None, None, None).named() == "nominal"
+    assert Outcome("unknown", "cut short", None, None).named() == "unknown"
