@@ -159,6 +159,14 @@ BEARING_REACH = 1.5
 # A throw no hypothesis explains is an anomaly: the best fit's residual (its MSE over its effective samples) beyond
 # MODEL_ERROR_MARGIN times what the switch's commissioning throws left, at the chi-square quantile of its effective
 # samples at FALSE_ALARM_RATE (models/isolation.py: the same test a fault's detection makes).
+ANOMALOUS = "motor.resistance_ohm"
+AT_BOUND = 0.005
+SEASON = resistance_at(55.0) / resistance_at(-25.0)
+DAY_SWING = COPPER_PER_K * 30.0
+SUPPLY_TOLERANCE = 0.1
+BOLT_GRID = tuple(np.round(np.arange(-0.02, 0.2001, 0.02), 4))
+OBSTACLE_GRID = tuple({"obstacle_position": round(float(p), 3), "obstacle_friction": f}
+                      for p in np.arange(1.02, 1.1801, 0.02) for f in (3e4, 1.5e5))
 # A gearbox that binds at one point of the stroke loads the motor there, and at the same motor angle whichever way the
 # switch throws; the reduced models have no such load and read it as an obstacle, a bearing or drive friction. Its
 # mark in the stroke's current profile against the commissioning throws' (models/features.py): in both directions a
@@ -170,14 +178,6 @@ BEARING_REACH = 1.5
 # only the speed loop's lag apart (within 0.035 in the plant).
 LOCAL = 3.0
 SAME_PLACE = 0.06
-ANOMALOUS = "motor.resistance_ohm"
-AT_BOUND = 0.005
-SEASON = resistance_at(55.0) / resistance_at(-25.0)
-DAY_SWING = COPPER_PER_K * 30.0
-SUPPLY_TOLERANCE = 0.1
-BOLT_GRID = tuple(np.round(np.arange(-0.02, 0.2001, 0.02), 4))
-OBSTACLE_GRID = tuple({"obstacle_position": round(float(p), 3), "obstacle_friction": f}
-                      for p in np.arange(1.02, 1.1801, 0.02) for f in (3e4, 1.5e5))
 # A settled throw's (models/estimation.py SETTLED): an obstacle that appears without changing the throw is a small one.
 SMALL_OBSTACLE_GRID = tuple(point for point in OBSTACLE_GRID if point["obstacle_friction"] == 3e4)
 
