@@ -189,8 +189,12 @@ class LiveDiagnoser:
         starting after all were down): each owned switch's throws newer than its state, in order."""
         if self.recover is not None:
             before = self.counts["diagnosed"]
-            for item in self.recover("*", 0):
-                self.handle(item)
+            self._recovering = True  # what a gap among these lacks, the recorders do not hold either: no second query
+            try:
+                for item in self.recover("*", 0):
+                    self.handle(item)
+            finally:
+                self._recovering = False
             self.counts["recovered"] += self.counts["diagnosed"] - before
 
     def _catch_up(self, switch_id: str, after_ns: int, before_ns: int) -> None:
