@@ -75,6 +75,7 @@ class RecordingWriter:
         self._schema_ids: dict[type[Message], int] = {}
         self._channels: dict[str, tuple[int, type[Message], str]] = {}
         self._counters: Counter[str] = Counter()
+        self._finished = False
 
     def __enter__(self) -> Self:
         try:
@@ -93,6 +94,9 @@ class RecordingWriter:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
+        if self._finished:
+            return
+        self._finished = True
         try:
             if exc_type is None or not self._atomic:
                 self._writer.finish()
@@ -109,6 +113,14 @@ class RecordingWriter:
                 pass  # the data that could not be flushed is lost either way; the error is reported above
             if self._atomic:
                 self._file.unlink(missing_ok=True)
+
+    def finish(self) -> None:
+        """Write the summary and close the file now, for a writer that is not atomic: a recorder finishes its file as
+        soon as it stops recording, so what follows (closing its bus session, which can be slow) cannot cost the file.
+        Leaving the with block afterwards does nothing more."""
+        if self._atomic:
+            raise TypeError("an atomic recording is finished by leaving its with block")
+        self.__exit__(None, None, None)
 
     def flush(self) -> None:
         """Close the chunk in progress and hand everything to the operating system: a process

@@ -93,11 +93,12 @@ def run_recorder(options: BusOptions, out: str, *, stop: threading.Event, status
                     flushed = time.monotonic()
                 status.maybe_publish(counters)
             status.maybe_publish(counters(), force=True)
+            writer.finish()  # before the session closes, which can take long enough to be killed for
+            log.info("wrote %d messages to %s; rejected %s", writer.message_count, writer.path,
+                     dict(recorder.intake.rejected) or "nothing")
             token.undeclare()
         finally:
             session.close()
-        log.info("wrote %d messages to %s; rejected %s", writer.message_count, writer.path,
-                 dict(recorder.intake.rejected) or "nothing")
         return writer.message_count
 
 

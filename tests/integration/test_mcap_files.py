@@ -146,6 +146,26 @@ def test_non_atomic_writer_finishes_a_readable_file_on_exception(tmp_path: Path)
     assert reader.damage is None
 
 
+def test_a_live_writer_finished_early_leaves_a_complete_file_that_leaving_its_with_block_does_not_touch(
+        tmp_path: Path) -> None:
+    """The recorder finishes its file before it closes its bus session: a recorder killed while closing it (which
+    happened on CI) leaves a complete file, not one whose last bytes the reader takes for a summary."""
+    path = tmp_path / "live.mcap"
+    key, msg, _ = sample_messages()[3]
+    with pytest.raises(KeyboardInterrupt):
+        with RecordingWriter(path, atomic=False) as writer:
+            writer.write(key, msg)
+            writer.finish()
+            finished = path.read_bytes()
+            reader = RecordingReader(path)
+            assert [r.message for r in reader] == [msg] and reader.damage is None
+            raise KeyboardInterrupt  # as a signal killing the process now would: the file stays as it was
+    assert path.read_bytes() == finished
+    with pytest.raises(TypeError, match="atomic"):
+        with RecordingWriter(tmp_path / "run.mcap") as atomic:
+            atomic.finish()
+
+
 def test_writer_rejects_a_message_of_the_wrong_kind_or_switch(tmp_path: Path) -> None:
     _, motor, _ = sample_messages()[3]
     with RecordingWriter(tmp_path / "run.mcap") as writer:
