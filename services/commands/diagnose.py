@@ -1,4 +1,4 @@
-"""`railswitch diagnose F.mcap`: every throw of a recording, as a table or as JSON lines."""
+"""`railswitch diagnose F.mcap|F.csv`: every throw of a recording or a CSV file, as a table or as JSON lines."""
 from __future__ import annotations
 
 import argparse
@@ -9,9 +9,9 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
-from railswitch.schemas import ThrowEvent, encode
+from railswitch.schemas import ThrowEvent, ThrowRecord, encode
 from railswitch.services.core.fleet_diagnoser import DiagnosedThrow, Diagnoser, diagnose_messages
-from railswitch.services.adapters.recordings import load_recording
+from railswitch.services.adapters.csv_throws import CsvInputError, load_throws
 from railswitch.services.commands.options import add_model_argument
 
 
@@ -25,11 +25,16 @@ def key_estimate(item: DiagnosedThrow) -> str:
 
 def read_messages(path: str) -> list | None:
     """A recording's messages, with one line on its damage, what was skipped and what this version does not know
-    (a newer writer's fields, counted per name); None when the file is not there."""
+    (a newer writer's fields, counted per name); None when the file is not there or is a CSV file that cannot be
+    read (one line says where)."""
     if not Path(path).is_file():
         print(f"railswitch diagnose: {path}: no such file", file=sys.stderr)
         return None
-    recording = load_recording(path)
+    try:
+        recording = load_throws(path)
+    except CsvInputError as error:
+        print(f"railswitch diagnose: {error}", file=sys.stderr)
+        return None
     note = recording.note()
     if note:
         print(f"railswitch diagnose: {path}: {note}", file=sys.stderr)  # one line, never wrapped
@@ -65,7 +70,7 @@ def diagnose_file(path: str, model: str = "poly", jsonl: bool = False, baseline:
     healthy = read_messages(baseline) if baseline else []
     if healthy is None:
         return 2
-    throws = sum(isinstance(m, ThrowEvent) and m.phase == "start" for m in messages)
+    throws = sum((isinstance(m, ThrowEvent) and m.phase == "start") or isinstance(m, ThrowRecord) for m in messages)
     diagnoser = Diagnoser(model)
     if healthy:
         commission_from(diagnoser, healthy, {m.switch_id for m in messages if hasattr(m, "switch_id")})
@@ -97,7 +102,8 @@ def diagnose_file(path: str, model: str = "poly", jsonl: bool = False, baseline:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("recording", metavar="F.mcap")
+    parser.add_argument("recording", metavar="F.mcap|F.csv",
+                        help="a recording, or a CSV file of one row per sample (docs/contracts.md section 4)")
     add_model_argument(parser)
     parser.add_argument("--jsonl", action="store_true", help="one Diagnosis JSON object per throw on stdout")
     parser.add_argument("--baseline", metavar="G.mcap", default=None,

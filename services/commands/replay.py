@@ -13,7 +13,7 @@ import sys
 import threading
 import time
 
-from railswitch.services.adapters.recordings import load_recording
+from railswitch.services.adapters.csv_throws import CsvInputError, load_throws
 from railswitch.services.adapters.zenoh_bus import BusOptions, Publishers, declare_service, open_session
 from railswitch.services.commands.options import add_service_arguments, bounded, fail, run_service
 from railswitch.services.core.replay_plan import PLANT_KINDS, ReplayPlan
@@ -57,9 +57,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     try:
-        recording = load_recording(args.recording)
+        recording = load_throws(args.recording)
     except OSError as error:
         return fail(f"cannot read {args.recording}: {error.strerror}")
+    except CsvInputError as error:
+        return fail(str(error))
     kinds = PLANT_KINDS + (("diagnosis",) if args.with_diagnosis else ())
     plan = ReplayPlan.of(recording.records, kinds)
     note = recording.note()

@@ -26,11 +26,12 @@ from railswitch.schemas.faults import FAULT_PARAMETERS  # noqa: E402
 from railswitch.services.core.fleet_diagnoser import DiagnosedThrow, Diagnoser, diagnose_messages  # noqa: E402
 from railswitch.schemas import MAX_LIMIT, HistoryQuery, Message, SwitchHealth  # noqa: E402
 from railswitch.services.adapters.history_store import open_history  # noqa: E402
-from railswitch.services.adapters.recordings import load_recording  # noqa: E402
+from railswitch.services.adapters.csv_throws import load_throws as load_file  # noqa: E402
 from railswitch.services.commands.options import add_model_argument, fail  # noqa: E402
 from railswitch.services.core.health_series import ParameterSeries, SwitchSeries, health_series  # noqa: E402
 from railswitch.services.core.historian import HistoryAnswers  # noqa: E402
-from railswitch.services.core.throw_cutter import CutThrow, cut_throws  # noqa: E402
+from railswitch.services.core.records import every_throw  # noqa: E402
+from railswitch.services.core.throw_cutter import CutThrow  # noqa: E402
 
 PANELS = (("current_a", "current [A]"), ("angle_rad", "angle [rad]"), ("velocity_rad_s", "angular velocity [rad/s]"))
 
@@ -51,9 +52,9 @@ def _label(path: Path, throw: CutThrow) -> str:
 
 
 def load_throws(path: Path) -> tuple[list[Message], list[CutThrow]]:
-    """Messages and throws of one recording; damage is reported on stderr with what could be read."""
-    recording = load_recording(path)
-    throws = list(cut_throws(recording.messages))
+    """Messages and throws of one recording or CSV file; damage is reported on stderr with what could be read."""
+    recording = load_file(path)
+    throws = list(every_throw(recording.messages))
     damage = f"; {recording.damage}" if recording.damage else ""
     if not throws:
         raise ValueError(f"{path}: no throws found in {len(recording.messages)} messages{damage}")

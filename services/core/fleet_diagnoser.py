@@ -49,7 +49,8 @@ from railswitch.schemas import (
 from railswitch.services.adapters import model_store
 from railswitch.services.adapters.compiled import MachineCode
 from railswitch.services.core.switch_messages import switch_messages
-from railswitch.services.core.throw_cutter import CutThrow, ThrowCutter
+from railswitch.services.core.records import every_throw
+from railswitch.services.core.throw_cutter import CutThrow
 
 log = logging.getLogger("railswitch.diagnoser")
 
@@ -326,11 +327,7 @@ def diagnose_simulation(diagnoser: Diagnoser, switch_id: str, sim: SwitchSimulat
 
 
 def diagnose_messages(messages: Iterable[Message], diagnoser: Diagnoser) -> Iterator[DiagnosedThrow]:
-    """Every throw of an ordered message stream, in the order the throws end; unfinished ones last."""
-    cutter = ThrowCutter()
-    for message in messages:
-        throw = cutter.feed(message)
-        if throw is not None:
-            yield diagnoser.diagnose(throw)
-    for throw in cutter.flush():
+    """Every throw of an ordered message stream (samples or records), in the order the throws end; unfinished ones
+    last."""
+    for throw in every_throw(messages):
         yield diagnoser.diagnose(throw)

@@ -6,7 +6,7 @@ The sample at offset 0 is the last one at rest, as the sample at a start event's
 """
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 
 import numpy as np
 
@@ -15,7 +15,7 @@ from railswitch.models.signals import SIGNAL_NAMES, MotorSignals
 from railswitch.models.switch import SwitchSimulation, Throw
 from railswitch.schemas import FaultTruth, Message, ThrowEvent, ThrowRecord, key_expr
 from railswitch.services.core.switch_messages import truth_message
-from railswitch.services.core.throw_cutter import CutThrow
+from railswitch.services.core.throw_cutter import CutThrow, ThrowCutter
 
 
 def throw_of_record(record: ThrowRecord, truth: FaultTruth | None = None) -> CutThrow:
@@ -30,6 +30,23 @@ def throw_of_record(record: ThrowRecord, truth: FaultTruth | None = None) -> Cut
     t_s = np.asarray(record.t_offset_ns, dtype=np.int64) * 1e-9  # as the cutter's (t_ns - t_start_ns) * 1e-9
     return CutThrow(switch_id=record.switch_id, start=start, end=end, t_s=t_s, signals=signals, missing_samples=0,
                     truth=truth)
+
+
+def every_throw(messages: Iterable[Message]) -> Iterator[CutThrow]:
+    """Every throw of an ordered message stream, whether streamed as samples or sent as records (with the switch's
+    latest truth), in the order the throws end; unfinished streamed ones last."""
+    cutter = ThrowCutter()
+    truth: dict[str, FaultTruth] = {}
+    for message in messages:
+        if isinstance(message, ThrowRecord):
+            yield throw_of_record(message, truth.get(message.switch_id))
+            continue
+        if isinstance(message, FaultTruth):
+            truth[message.switch_id] = message
+        throw = cutter.feed(message)
+        if throw is not None:
+            yield throw
+    yield from cutter.flush()
 
 
 def record_of_throw(throw: CutThrow) -> ThrowRecord:
