@@ -1,0 +1,76 @@
+"""railswitch's Python API, for a notebook or a script: read throws from a recording or a CSV file, build them from
+numpy arrays, simulate them, and diagnose them, with no router and no service. `import railswitch` gives these names
+(railswitch/__init__.py loads this module on first use, so importing the package stays light).
+
+    import railswitch
+    diagnoser = railswitch.Diagnoser(model="poly")
+    for throw in railswitch.read_throws("log.csv"):          # or F.mcap
+        result = diagnoser.diagnose(throw)
+        print(result.diagnosis.switch_id, result.diagnosis.throw_index, result.diagnosis.faults)
+
+A Diagnoser keeps each switch's state (its commissioning, confirmed faults and health) across the throws it is
+given, in order, as the live diagnoser does: give it a switch's throws oldest first. `result` is a DiagnosedThrow:
+`.diagnosis` (the Diagnosis message of docs/contracts.md section 3), `.health` (SwitchHealth) and `.alarms`.
+"""
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+
+import numpy as np
+
+from railswitch.models.plant import Plant
+from railswitch.models.reference import throw_reference
+from railswitch.models.switch import SwitchSimulation
+from railswitch.schemas import ThrowRecord
+from railswitch.services.adapters.csv_throws import load_throws
+from railswitch.services.core.fleet_diagnoser import DiagnosedThrow, Diagnoser
+from railswitch.services.core.records import every_throw, throw_of_record
+from railswitch.services.core.switch_messages import SimulatedThrows
+from railswitch.services.core.throw_cutter import CutThrow as Throw
+
+__all__ = ["DiagnosedThrow", "Diagnoser", "Throw", "make_throw", "read_throws", "simulate"]
+
+
+def read_throws(path: str | os.PathLike[str]) -> list[Throw]:
+    """Every throw of a recording (MCAP) or a CSV file (docs/contracts.md section 4), in the order they ended.
+
+    A damaged recording gives what could be read before the damage; a CSV file that cannot be read raises
+    railswitch.services.adapters.csv_throws.CsvInputError (a ValueError) naming its row and column."""
+    return list(every_throw(load_throws(path).messages))
+
+
+def make_throw(switch_id: str, throw_index: int, direction: str, t_s: Sequence[float] | np.ndarray,
+               current_a: Sequence[float] | np.ndarray, angle_rad: Sequence[float] | np.ndarray | None = None,
+               velocity_rad_s: Sequence[float] | np.ndarray | None = None, *, t_start_ns: int = 0) -> Throw:
+    """A throw from arrays of its samples: times in seconds from its start (the sample at 0 the last at rest), the
+    motor current and, where logged, its angle and angular velocity. `direction`: left_to_right or right_to_left.
+    The values are checked as a ThrowRecord's are (ValueError naming the field); the throw gets the reference
+    profile of the machine type modelled in its direction, as a CSV file's throws do."""
+    offsets = np.rint(np.asarray(t_s, dtype=float) * 1e9).astype(np.int64)
+    if offsets.ndim != 1 or len(offsets) < 2:
+        raise ValueError("t_s: a throw needs at least two sample times")
+    reference = throw_reference(direction)
+
+    def listed(values):
+        return None if values is None else np.asarray(values, dtype=float).tolist()
+
+    record = ThrowRecord(switch_id=switch_id, throw_index=throw_index, direction=direction, t_start_ns=t_start_ns,
+                         t_end_ns=t_start_ns + int(offsets[-1]), reference_t_s=reference.t_s.tolist(),
+                         reference_velocity_rad_s=reference.velocity_rad_s.tolist(), t_offset_ns=offsets.tolist(),
+                         current_a=listed(current_a), angle_rad=listed(angle_rad),
+                         velocity_rad_s=listed(velocity_rad_s))
+    return throw_of_record(record)
+
+
+def simulate(throws: int = 4, *, faults: dict[str, float] | None = None, own: dict[str, float] | None = None,
+             switch_id: str = "sw1", noise: float = 0.0, seed: int = 0, plant: Plant | None = None) -> list[Throw]:
+    """`throws` throws of a simulated switch (the high-fidelity plant), alternating directions from left to right.
+
+    `faults`: fault parameters by name (docs/contracts.md section 2, e.g. {"left_bolt_offset": 0.05});
+    `own`: the switch's own build and weather where not nominal (section 2a); `noise`: white noise of that share
+    of each signal's peak. Each throw carries the truth it was simulated with (`throw.truth`). Pass one `plant` to
+    several calls to build its solver once."""
+    sim = SwitchSimulation(plant or Plant(), faults=faults, own=own, noise_rel=noise, seed=seed)
+    source = SimulatedThrows(switch_id, sim)
+    return [source.next() for _ in range(throws)]
