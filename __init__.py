@@ -5,7 +5,7 @@ rooms import as `railswitch.models`, `railswitch.schemas` and `railswitch.servic
 docs/architecture.md says what lives where.
 """
 
-__all__ = ["DiagnosedThrow", "Diagnoser", "Throw", "make_throw", "read_throws", "simulate"]  # from railswitch/api.py
+__all__ = ["DiagnosedThrow", "Diagnoser", "Throw", "make_throw", "read_history", "read_throws", "simulate"]  # from railswitch/api.py
 
 
 def __getattr__(name: str):

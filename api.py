@@ -22,14 +22,15 @@ import numpy as np
 from railswitch.models.plant import Plant
 from railswitch.models.reference import throw_reference
 from railswitch.models.switch import SwitchSimulation
-from railswitch.schemas import ThrowRecord
+from railswitch.schemas import CHANNEL_MODELS, HISTORY_KINDS, Message, ThrowRecord, decode
+from railswitch.services.adapters.history_store import open_history
 from railswitch.services.adapters.csv_throws import load_throws
 from railswitch.services.core.fleet_diagnoser import DiagnosedThrow, Diagnoser
 from railswitch.services.core.records import every_throw, throw_of_record
 from railswitch.services.core.switch_messages import SimulatedThrows
 from railswitch.services.core.throw_cutter import CutThrow as Throw
 
-__all__ = ["DiagnosedThrow", "Diagnoser", "Throw", "make_throw", "read_throws", "simulate"]
+__all__ = ["DiagnosedThrow", "Diagnoser", "Throw", "make_throw", "read_history", "read_throws", "simulate"]
 
 
 def read_throws(path: str | os.PathLike[str]) -> list[Throw]:
@@ -74,3 +75,16 @@ def simulate(throws: int = 4, *, faults: dict[str, float] | None = None, own: di
     sim = SwitchSimulation(plant or Plant(), faults=faults, own=own, noise_rel=noise, seed=seed)
     source = SimulatedThrows(switch_id, sim)
     return [source.next() for _ in range(throws)]
+
+
+def read_history(db: str | os.PathLike[str], switch_id: str, kind: str = "diagnosis", *, limit: int = 1000,
+                 since_ns: int | None = None, until_ns: int | None = None) -> list[Message]:
+    """A switch's latest `limit` stored messages of one kind (diagnosis, health or alarm), oldest first, from a
+    historian's SQLite file or a postgresql:// URL; the store is only read (a missing file is an error, not made).
+
+    HistoryDbError (an OSError, one line) when the store cannot be used; ValueError for an unknown kind."""
+    if kind not in HISTORY_KINDS:
+        raise ValueError(f"kind {kind!r} is not one of {', '.join(HISTORY_KINDS)}")
+    with open_history(db, create=False) as store:
+        payloads, _ = store.latest(switch_id, kind, since_ns, until_ns, limit)
+    return [decode(CHANNEL_MODELS[kind], payload.encode()) for payload in payloads]

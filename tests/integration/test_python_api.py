@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 import railswitch
 from tests.integration.test_csv_input import write_csv
@@ -52,3 +53,21 @@ def test_a_throw_built_from_arrays_is_diagnosed_as_the_simulated_one(plant):
         by_sim, by_arrays = first.diagnose(throw).diagnosis, second.diagnose(built).diagnosis
         assert by_sim.hypotheses
         assert by_arrays.model_dump(exclude={"latency_ms"}) == by_sim.model_dump(exclude={"latency_ms"})
+
+
+@pytest.mark.parametrize("store", ["sqlite", "postgresql"])
+def test_read_history_gives_a_stores_messages_back_oldest_first(plant, tmp_path, store, request):
+    from railswitch.schemas import encode
+    from railswitch.services.adapters.history_store import HistoryRow, open_history
+
+    db = str(tmp_path / "history.sqlite") if store == "sqlite" else request.getfixturevalue("pg_url")
+    diagnoser = railswitch.Diagnoser(model="poly")
+    results = [diagnoser.diagnose(throw) for throw in railswitch.simulate(3, seed=5, plant=plant)]
+    with open_history(db) as written:
+        written.write([HistoryRow("sw1", kind, r.diagnosis.throw_index, r.diagnosis.t_end_ns, encode(message).decode())
+                       for r in results for kind, message in (("diagnosis", r.diagnosis), ("health", r.health))])
+    assert railswitch.read_history(db, "sw1") == [r.diagnosis for r in results]
+    assert railswitch.read_history(db, "sw1", "health", limit=2) == [r.health for r in results[1:]]
+    assert railswitch.read_history(db, "sw2") == []
+    with pytest.raises(ValueError, match="kind 'diagnoses' is not one of diagnosis, health, alarm"):
+        railswitch.read_history(db, "sw1", "diagnoses")
