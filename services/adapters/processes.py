@@ -27,6 +27,7 @@ class ServiceProcesses:
         self.grace_s = grace_s
         self.started: list[tuple[str, Path, subprocess.Popen]] = []
         self.stopped: set[int] = set()  # pids we stopped on purpose
+        self.killed: list[subprocess.Popen] = []  # those that outlived the grace period and were killed
 
     def start(self, name: str, *args: str) -> subprocess.Popen:
         path = self.log_dir / f"{name}-{len(self.started)}.log"
@@ -47,20 +48,41 @@ class ServiceProcesses:
         self.stopped.add(process.pid)
         if process.poll() is None:
             process.send_signal(sig)
+            self._wait(process)
+        return process.returncode
+
+    def _wait(self, process: subprocess.Popen) -> None:
+        """Wait for a signalled process, killing it after the grace period."""
+        if process.poll() is None:
             try:
                 process.wait(self.grace_s)
             except subprocess.TimeoutExpired:
                 process.kill()
                 process.wait()
-        return process.returncode
+                self.killed.append(process)
 
     def stop_all(self) -> None:
         """Latest first, so producers stop before the recorder finishes its file."""
         running = [p for _, _, p in reversed(self.started) if p.poll() is None]
         for process in running:
+            self.stopped.add(process.pid)
             process.send_signal(signal.SIGINT)
-        for process in running:
-            self.stop(process)
+        for process in running:  # signalled once: a second SIGINT could reach a service that has finished its
+            self._wait(process)  # work and given the signal back to Python, and kill it on its way out
+
+    def failures(self, lines: int = 10) -> str:
+        """One paragraph per child that failed, with its last log lines ('' when none did): one that exited with an
+        error code (a crash, say, which a recorder's file does not survive) or outlived the grace period and was
+        killed. Call it after stop_all."""
+        return "\n".join(
+            f"{self.name(p)} (pid {p.pid}) "
+            + (f"did not stop within {self.grace_s:g} s of SIGINT and was killed" if p in self.killed
+               else f"exited with code {p.returncode}")
+            + f"; its last lines:\n{self.log(p, lines)}"
+            for _, _, p in self.started if p in self.killed or p.returncode not in (0, None))
+
+    def name(self, process: subprocess.Popen) -> str:
+        return next(name for name, _, proc in self.started if proc is process)
 
     def __enter__(self) -> ServiceProcesses:
         return self

@@ -86,6 +86,10 @@ def zenoh_config(options: BusOptions) -> zenoh.Config:
     except zenoh.ZError as error:
         raise BusError(f"bad endpoint in {connect + list(options.listen)}: {_one_line(error)}") from None
     config.insert_json5("scouting/multicast/enabled", json.dumps(options.multicast_scouting))
+    # Zenoh's shared memory (on by default for payloads over 3 KiB between processes of one host: records, diagnoses)
+    # takes SIGINT and SIGTERM from Python when it starts, for its own cleanup at exit: a service that had received
+    # one such payload never saw its stop signal and was killed with its file unfinished. The payloads are small.
+    config.insert_json5("transport/shared_memory/enabled", "false")
     if options.lease_ms is not None:
         config.insert_json5("transport/link/tx/lease", str(options.lease_ms))
     if mode != "router":

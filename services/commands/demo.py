@@ -220,6 +220,9 @@ def run(args: argparse.Namespace) -> int:
         console.print(f"recording: {out.resolve()}", soft_wrap=True)
         console.print(f"history: {history.resolve()} (railswitch history sw1 --db {history})", highlight=False,
                       soft_wrap=True)
+        if failures := processes.failures():  # a recorder that crashed or was killed may have left its file unfinished
+            print(f"railswitch demo: {failures}", file=sys.stderr)
+            return 1
         return 130 if stop.is_set() else 0
 
 
