@@ -79,7 +79,11 @@ class ServiceProcesses:
             + (f"did not stop within {self.grace_s:g} s of SIGINT and was killed" if p in self.killed
                else f"exited with code {p.returncode}")
             + f"; its last lines:\n{self.log(p, lines)}"
-            for _, _, p in self.started if p in self.killed or p.returncode not in (0, None))
+            for p in self.failed())
+
+    def failed(self) -> list[subprocess.Popen]:
+        """The children that exited with an error code or were killed."""
+        return [p for _, _, p in self.started if p in self.killed or p.returncode not in (0, None)]
 
     def name(self, process: subprocess.Popen) -> str:
         return next(name for name, _, proc in self.started if proc is process)
