@@ -20,11 +20,10 @@ from collections.abc import Sequence
 import numpy as np
 
 from railswitch.models.plant import Plant
-from railswitch.models.reference import throw_reference
 from railswitch.models.switch import SwitchSimulation
-from railswitch.schemas import CHANNEL_MODELS, HISTORY_KINDS, Message, ThrowRecord, decode
+from railswitch.schemas import CHANNEL_MODELS, HISTORY_KINDS, Message, decode
 from railswitch.services.adapters.history_store import open_history
-from railswitch.services.adapters.csv_throws import load_throws
+from railswitch.services.adapters.csv_throws import load_throws, logged_record
 from railswitch.services.core.fleet_diagnoser import DiagnosedThrow, Diagnoser
 from railswitch.services.core.records import every_throw, throw_of_record
 from railswitch.services.core.switch_messages import SimulatedThrows
@@ -48,19 +47,10 @@ def make_throw(switch_id: str, throw_index: int, direction: str, t_s: Sequence[f
     motor current and, where logged, its angle and angular velocity. `direction`: left_to_right or right_to_left.
     The values are checked as a ThrowRecord's are (ValueError naming the field); the throw gets the reference
     profile of the machine type modelled in its direction, as a CSV file's throws do."""
-    offsets = np.rint(np.asarray(t_s, dtype=float) * 1e9).astype(np.int64)
-    if offsets.ndim != 1 or len(offsets) < 2:
+    if np.ndim(t_s) != 1 or len(t_s) < 2:
         raise ValueError("t_s: a throw needs at least two sample times")
-    reference = throw_reference(direction)
-
-    def listed(values):
-        return None if values is None else np.asarray(values, dtype=float).tolist()
-
-    record = ThrowRecord(switch_id=switch_id, throw_index=throw_index, direction=direction, t_start_ns=t_start_ns,
-                         t_end_ns=t_start_ns + int(offsets[-1]), reference_t_s=reference.t_s.tolist(),
-                         reference_velocity_rad_s=reference.velocity_rad_s.tolist(), t_offset_ns=offsets.tolist(),
-                         current_a=listed(current_a), angle_rad=listed(angle_rad),
-                         velocity_rad_s=listed(velocity_rad_s))
+    record = logged_record(switch_id, throw_index, direction, t_start_ns, t_s,
+                           {"current_a": current_a, "angle_rad": angle_rad, "velocity_rad_s": velocity_rad_s})
     return throw_of_record(record)
 
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 import csv
 import os
 from collections import Counter
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -94,9 +95,12 @@ class _Cells:
     def error(self, name: str, problem: str) -> CsvInputError:
         return CsvInputError(f"{self.path}: row {self.row_number}, column {name}: {problem}")
 
-    def text(self, name: str) -> str:
+    def raw(self, name: str) -> str:
         k = self.column[name]
-        value = self.row[k].strip() if k < len(self.row) else ""
+        return self.row[k].strip() if k < len(self.row) else ""
+
+    def text(self, name: str) -> str:
+        value = self.raw(name)
         if not value:
             raise self.error(name, "empty")
         return value
@@ -115,8 +119,7 @@ class _Cells:
         """The cell as a finite number; None for an empty cell of an optional column (or a column not there)."""
         if name not in self.column:
             return None
-        k = self.column[name]
-        if name in OPTIONAL and not (self.row[k].strip() if k < len(self.row) else ""):
+        if name in OPTIONAL and not self.raw(name):
             return None
         value = self.text(name)
         try:
@@ -136,7 +139,7 @@ class _Throw:
         self.first_row = 0
         self.t_s: list[float] = []
         self.signals: dict[str, list[float | None]] = {"current_a": [], **{name: [] for name in OPTIONAL}}
-        self.rows: dict[str, list[int]] = {name: [] for name in OPTIONAL}  # rows of each optional signal's values
+        self.first_with: dict[str, int] = {}  # the first row with a value, of each optional signal
 
     def add(self, cell: _Cells, direction: str) -> None:
         if direction != self.direction:
@@ -155,27 +158,35 @@ class _Throw:
             value = cell.number(name)
             self.signals[name].append(value)
             if value is not None:
-                self.rows[name].append(cell.row_number)
+                self.first_with.setdefault(name, cell.row_number)
 
     def record(self, path: Path, switch_id: str, index: int, t_start_ns: int) -> ThrowRecord:
-        offsets = np.rint(np.asarray(self.t_s) * 1e9).astype(np.int64)
         signals = {}
         for name, values in self.signals.items():
             held = [v for v in values if v is not None]
             if held and len(held) < len(values):
                 raise CsvInputError(f"{path}: column {name}: {switch_id} throw {index} has it in {len(held)} of its "
-                                    f"{len(values)} rows (first row {self.rows[name][0]}): all of a throw's samples "
-                                    "or none")
+                                    f"{len(values)} rows (first row {self.first_with[name]}): all of a throw's "
+                                    "samples or none")
             signals[name] = held or None
-        reference = throw_reference(self.direction)
         try:
-            return ThrowRecord(switch_id=switch_id, throw_index=index, direction=self.direction,
-                               t_start_ns=t_start_ns, t_end_ns=t_start_ns + int(offsets[-1]),
-                               reference_t_s=reference.t_s.tolist(),
-                               reference_velocity_rad_s=reference.velocity_rad_s.tolist(),
-                               t_offset_ns=offsets.tolist(), **signals)
+            return logged_record(switch_id, index, self.direction, t_start_ns, self.t_s, signals)
         except ValidationError as error:
             problem = error.errors()[0]
             where = ".".join(str(part) for part in problem["loc"]) or "the throw"
             raise CsvInputError(f"{path}: {switch_id} throw {index} (from row {self.first_row}): {where}: "
                                 f"{problem['msg']}") from None
+
+
+def logged_record(switch_id: str, index: int, direction: str, t_start_ns: int, t_s: Sequence[float] | np.ndarray,
+                  signals: Mapping[str, Sequence[float] | np.ndarray | None]) -> ThrowRecord:
+    """A throw logged with neither a reference profile nor a clock (a CSV file's, or arrays given to the Python
+    API) as a record: its times in seconds from its start, the reference of the machine type modelled in its
+    direction. pydantic's ValidationError (a ValueError) names what the record refuses."""
+    offsets = np.rint(np.asarray(t_s, dtype=float) * 1e9).astype(np.int64)
+    reference = throw_reference(direction)
+    return ThrowRecord(switch_id=switch_id, throw_index=index, direction=direction, t_start_ns=t_start_ns,
+                       t_end_ns=t_start_ns + int(offsets[-1]), reference_t_s=reference.t_s.tolist(),
+                       reference_velocity_rad_s=reference.velocity_rad_s.tolist(), t_offset_ns=offsets.tolist(),
+                       **{name: None if values is None else np.asarray(values, dtype=float).tolist()
+                          for name, values in signals.items()})
