@@ -375,11 +375,17 @@ class StatusReporter:
         self.publishers.put(self.key, status)
 
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
 @contextmanager
 def stop_on_signals() -> Iterator[threading.Event]:
-    """An Event set by SIGINT or SIGTERM, so services finish their work (and files) cleanly."""
+    """An Event set by SIGINT or SIGTERM, so a process that starts services finishes its work (and files) cleanly.
+
+    Python's handlers: the signals reach whatever runs while the block is open. A service process uses
+    wait_for_stop_signals instead, which no library can take the signals from."""
     stop = threading.Event()
-    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    previous = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
 
     def handler(signum, frame):  # noqa: ARG001 - signal API
         stop.set()
@@ -391,6 +397,38 @@ def stop_on_signals() -> Iterator[threading.Event]:
     finally:
         for sig, old in previous.items():
             signal.signal(sig, old)
+
+
+@contextmanager
+def wait_for_stop_signals() -> Iterator[threading.Event]:
+    """An Event set by SIGINT or SIGTERM, for a service process: the signals are blocked in this thread before any
+    Zenoh thread exists (so in every thread the process starts later), and one thread takes them with sigwait.
+
+    A native library can replace a signal's handler (Zenoh's shared memory did so), and Python runs its handlers only
+    when the main thread gets round to it; a blocked signal stays pending until sigwait takes it, whichever handler is
+    installed. Threads started earlier (a BLAS pool started by an import) keep their mask: the command line blocks
+    the signals while it imports a command (services/commands/cli.py), and a Python handler sets the Event for any
+    thread that still takes them. Call it from the main thread before opening a session; a child process started
+    inside the block inherits the blocked signals, so a process that starts children uses stop_on_signals."""
+    with stop_on_signals() as stop:
+        waiter_ready = threading.Event()
+        previous = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+
+        def wait() -> None:
+            waiter_ready.set()
+            signal.sigwait(STOP_SIGNALS)
+            stop.set()
+
+        waiter = threading.Thread(target=wait, name="railswitch-stop-signals", daemon=True)
+        waiter.start()
+        waiter_ready.wait()
+        try:
+            yield stop
+        finally:
+            if waiter.is_alive():  # the service ended by itself: wake the waiter with a signal only it takes
+                signal.pthread_kill(waiter.ident, signal.SIGTERM)
+                waiter.join()
+            signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def configure_logging(verbose: bool = False) -> None:

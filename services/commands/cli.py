@@ -6,6 +6,7 @@ command asked for is imported, so a typo or `--help` answers at once.
 from __future__ import annotations
 
 import importlib
+import signal
 import sys
 from collections.abc import Iterable
 
@@ -53,8 +54,14 @@ def build_parser(commands: Iterable[str] | None = None) -> Parser:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     named = [word for word in argv if word in COMMANDS][:1]  # the first word that names a command
-    args = build_parser(named).parse_args(argv)
+    # Threads that importing a command starts (a BLAS pool) keep the signal mask they start with: blocked, they never
+    # take a live service's stop signal from the thread that waits for it (zenoh_bus.wait_for_stop_signals).
+    unblocked = signal.pthread_sigmask(signal.SIG_BLOCK, (signal.SIGINT, signal.SIGTERM))
     try:
+        try:
+            args = build_parser(named).parse_args(argv)
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, unblocked)  # a signal taken meanwhile arrives here
         return args.handler(args)
     except KeyboardInterrupt:
         return 130

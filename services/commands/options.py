@@ -188,12 +188,12 @@ def bus_options(args: argparse.Namespace):
 
 def run_service(run: Callable, args: argparse.Namespace) -> int:
     """Run a live service `run(options, stop)` with logging, SIGINT/SIGTERM handling and one-line errors."""
-    from railswitch.services.adapters.zenoh_bus import BusError, configure_logging, stop_on_signals
+    from railswitch.services.adapters.zenoh_bus import BusError, configure_logging, wait_for_stop_signals
 
     configure_logging(args.verbose)
     try:
         options = bus_options(args)
-        with stop_on_signals() as stop:
+        with wait_for_stop_signals() as stop:
             run(options, stop)
     except (BusError, OSError, ValueError) as error:
         return fail(str(error))

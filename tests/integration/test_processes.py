@@ -63,3 +63,47 @@ def test_a_service_sent_large_payloads_by_a_shared_memory_peer_still_stops_on_it
         ours.close()
         services.stop_all()
     assert services.killed == [] and code == 0, services.failures()
+
+
+# Started in a service process (through PYTHONPATH) before its command runs: once the service has installed its
+# Python handler, a "native library" sets SIGINT's C-level handler to one that never tells Python (SIG_IGN here),
+# as Zenoh's shared memory did, then its thread ends.
+TAKES_SIGINT = '''
+import ctypes, signal, threading, time
+
+def take_sigint():
+    deadline = time.monotonic() + 60
+    while signal.getsignal(signal.SIGINT) is signal.default_int_handler and time.monotonic() < deadline:
+        time.sleep(0.05)
+    time.sleep(0.5)
+    ctypes.CDLL(None).signal(int(signal.SIGINT), ctypes.c_void_p(1))  # SIG_IGN, behind Python's back
+    print("sitecustomize: SIGINT taken from Python", flush=True)
+
+threading.Thread(target=take_sigint, daemon=True).start()
+'''
+
+
+def test_a_service_whose_signal_handler_a_native_library_replaced_still_stops_on_its_first_sigint(tmp_path,
+                                                                                               monkeypatch):
+    """A service takes its stop signals with sigwait (zenoh_bus.wait_for_stop_signals), so whichever handler a library
+    installs, one SIGINT finishes the recording."""
+    from mcap.reader import make_reader
+
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "sitecustomize.py").write_text(TAKES_SIGINT)
+    services = ServiceProcesses(tmp_path, grace_s=20.0)
+    endpoint = free_loopback_endpoint()
+    services.start("router", "--listen", endpoint)
+    monkeypatch.setenv("PYTHONPATH", str(site))
+    out = tmp_path / "run.mcap"
+    recorder = services.start("recorder", "--connect", endpoint, "--out", str(out))
+    monkeypatch.delenv("PYTHONPATH")
+    try:
+        wait_for(lambda: "SIGINT taken from Python" in services.log(recorder), 60, "the recorder's handler replaced")
+        code = services.stop(recorder)
+    finally:
+        services.stop_all()
+    assert services.killed == [] and code == 0, services.failures()
+    with out.open("rb") as stream:
+        assert make_reader(stream).get_summary() is not None  # the file was finished
