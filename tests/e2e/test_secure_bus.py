@@ -344,11 +344,12 @@ def test_simulator_diagnoser_and_historian_processes_work_through_the_secured_ro
 
 def test_a_diagnoser_started_late_catches_up_from_the_simulators_cache_through_the_secured_router(bus, tmp_path):
     """The advanced publishers' caches live under <key>/@adv/, which the policy must let the simulator keep and
-    the diagnoser ask: the records published before any diagnoser ran are diagnosed once one starts."""
+    the diagnoser ask: the records published before any diagnoser ran are diagnosed once one starts. The simulator
+    throws for 100 s, so that it outlives a diagnoser that starts cold (compiling its model first)."""
     with ServiceProcesses(tmp_path) as services, bus.session("recorder") as reader:
         collector = DiagnosisCollector(reader)
         simulator = services.start("simulator", "--zenoh-config", bus.config_file("simulator"), "--connect",
-                                   bus.endpoint, "--switch-id", "sw3", "--throws", "60", "--interval", "10",
+                                   bus.endpoint, "--switch-id", "sw3", "--throws", "200", "--interval", "10",
                                    "--speed", "20", "--as-records")
         early = threading.Event()
         reader.declare_subscriber("railswitch/sw3/record", lambda sample: early.set())
@@ -369,7 +370,7 @@ def test_a_diagnoser_started_late_gets_a_sample_stream_s_throws_from_the_recorde
                        "--out", str(tmp_path / "secure.mcap"))
         wait_ready(reader, services, timeout_s=60, recorder=1)
         simulator = services.start("simulator", "--zenoh-config", bus.config_file("simulator"), "--connect",
-                                   bus.endpoint, "--switch-id", "sw4", "--throws", "60", "--interval", "10",
+                                   bus.endpoint, "--switch-id", "sw4", "--throws", "200", "--interval", "10",
                                    "--speed", "20")
         ended = threading.Event()
         reader.declare_subscriber("railswitch/sw4/throw",
