@@ -1,0 +1,43 @@
+"""The manual a newcomer reads: a short README whose links resolve, a user guide that has every command, and a
+results file that only benchmarks.report writes."""
+import re
+from pathlib import Path
+
+from benchmarks.report import RUNS, columns, render
+from railswitch.services.commands.cli import COMMANDS
+
+ROOT = Path(__file__).resolve().parents[2]
+README_LINES = 150  # a first screen or two: the commands, the picture, the three ways in, links
+
+
+def test_the_readme_is_short_and_starts_with_the_demo_and_the_test_command():
+    lines = (ROOT / "README.md").read_text().splitlines()
+    assert len(lines) <= README_LINES, f"README.md has {len(lines)} lines"
+    commands = lines[lines.index("```bash") + 1:lines.index("```bash") + 3]
+    assert commands == ["pip install -e . && railswitch demo", 'pip install -e ".[test]" && python -m pytest -q']
+
+
+def test_every_relative_link_and_picture_of_the_readme_and_the_docs_exists():
+    for page in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
+        for target in re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", page.read_text()):
+            if "://" not in target:
+                assert (page.parent / target).exists(), f"{page.name} links {target}, which does not exist"
+
+
+def test_the_user_guide_has_a_section_for_every_command():
+    guide = (ROOT / "docs" / "user-guide.md").read_text()
+    headings = [line for line in guide.splitlines() if line.startswith("#")]
+    missing = [name for name in COMMANDS if not any(f"`railswitch {name}" in line for line in headings)]
+    assert missing == []
+
+
+def test_the_results_file_tabulates_each_representation_of_a_kept_run_and_says_which_were_not_run():
+    per_model = next(run for run in RUNS if run.per_model)
+    results = {f"{per_model.benchmark}-poly": {"latency_ms": {"p50": 32.5}, "cases": [1, 2], "isolation": 1.0},
+               f"{per_model.benchmark}-nn": {"latency_ms": {"p50": 30.25}, "isolation": 0.98}}
+    cols = columns(per_model, results)
+    assert cols == {"poly": {"latency_ms.p50": 32.5, "isolation": 1.0},
+                    "nn": {"latency_ms.p50": 30.25, "isolation": 0.98}}  # lists stay in the kept JSON
+    text = render(results, {name: f"python -m benchmarks.{per_model.benchmark}" for name in results})
+    assert "| `latency_ms.p50` | 32.5 | 30.25 |" in text
+    assert text.count("Not run for this file.") == len(RUNS) - 1
