@@ -24,7 +24,6 @@ A feature the throw cannot give (no stroke at top speed, no sample in the lock z
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -114,13 +113,25 @@ def _throw_time(t_s: np.ndarray, signals: MotorSignals, top: float, duration_s: 
     return float(t_s[turning[-1]]) if len(turning) else duration_s
 
 
+def _row(index: int, features: dict[str, float | None]) -> list[float]:
+    """A recent throw as FeatureTrends keeps it: its index, then its features in FEATURES order, NaN where it had
+    none."""
+    return [float(index), *(np.nan if features.get(name) is None else float(features[name]) for name in FEATURES)]
+
+
+def _no_recent() -> np.ndarray:
+    return np.empty((0, 1 + len(FEATURES)))
+
+
 @dataclass
 class FeatureTrends:
     """A switch's features per direction: the commissioning throws' values (its band) and its recent ones."""
 
     needed: int
     learnt: dict[str, list[dict[str, float]]] = field(default_factory=lambda: {d: [] for d in DIRECTIONS})
-    recent: dict[str, deque] = field(default_factory=lambda: {d: deque(maxlen=RECENT_THROWS) for d in DIRECTIONS})
+    # per direction, a row per throw of the latest RECENT_THROWS (_row: its index, its features): an array, not
+    # dicts or tuples of floats, since every switch keeps them for as long as it serves
+    recent: dict[str, np.ndarray] = field(default_factory=lambda: {d: _no_recent() for d in DIRECTIONS})
     profiles: dict[str, list[np.ndarray]] = field(default_factory=lambda: {d: [] for d in DIRECTIONS})  # learnt
     profile: dict[str, np.ndarray | None] = field(default_factory=lambda: dict.fromkeys(DIRECTIONS))  # the latest
 
@@ -153,7 +164,7 @@ class FeatureTrends:
                profile: np.ndarray | None = None) -> list[dict]:
         """A throw of the commissioned switch: each feature's value, band, slope over the recent throws (per 100
         throws of the switch) and state, for the features its band knows."""
-        self.recent[direction].append((index, {n: v for n, v in features.items() if v is not None}))
+        self.recent[direction] = np.vstack([self.recent[direction], _row(index, features)])[-RECENT_THROWS:]
         self.profile[direction] = profile
         out = []
         for name in FEATURES:
@@ -168,20 +179,24 @@ class FeatureTrends:
 
     def latest(self, direction: str, name: str) -> float | None:
         """A feature's value in the direction's latest throw (None before one, or where that throw had none)."""
-        return self.recent[direction][-1][1].get(name) if self.recent[direction] else None
+        if not len(self.recent[direction]):
+            return None
+        value = float(self.recent[direction][-1, 1 + FEATURES.index(name)])
+        return None if math.isnan(value) else value
 
     def _slope(self, direction: str, name: str) -> float:
-        points = [(i, f[name]) for i, f in self.recent[direction] if name in f]
-        if len(points) < 3:
+        recent = self.recent[direction]
+        x, y = recent[:, 0], recent[:, 1 + FEATURES.index(name)]
+        x, y = x[~np.isnan(y)], y[~np.isnan(y)]
+        if len(x) < 3:
             return 0.0
-        x, y = np.array(points, dtype=float).T
         if np.ptp(x) == 0.0:
             return 0.0
         return float(100.0 * np.polyfit(x, y, 1)[0])
 
     def reset(self) -> None:
         self.learnt = {d: [] for d in DIRECTIONS}
-        self.recent = {d: deque(maxlen=RECENT_THROWS) for d in DIRECTIONS}
+        self.recent = {d: _no_recent() for d in DIRECTIONS}
         self.profiles = {d: [] for d in DIRECTIONS}
         self.profile = dict.fromkeys(DIRECTIONS)
 
@@ -193,7 +208,8 @@ class FeatureTrends:
         def curve(values: np.ndarray | None) -> list[float | None] | None:
             return None if values is None else [None if np.isnan(v) else float(f"{v:.4g}") for v in values]
         return {"names": list(FEATURES), "learnt": {d: [row(f) for f in self.learnt[d]] for d in DIRECTIONS},
-                "recent": {d: [[index, *row(f)] for index, f in self.recent[d]] for d in DIRECTIONS},
+                "recent": {d: [[int(r[0]), *row({n: v for n, v in zip(FEATURES, r[1:]) if not math.isnan(v)})]
+                               for r in self.recent[d].tolist()] for d in DIRECTIONS},
                 "profiles": {d: [curve(p) for p in self.profiles[d]] for d in DIRECTIONS},
                 "profile": {d: curve(self.profile[d]) for d in DIRECTIONS}}
 
@@ -208,8 +224,8 @@ class FeatureTrends:
             return {n: float(v) for n, v in zip(names, row) if v is not None and n in FEATURES}
         for direction in DIRECTIONS:
             self.learnt[direction] = [values(r) for r in data.get("learnt", {}).get(direction, [])][:self.needed]
-            for index, *row in data.get("recent", {}).get(direction, []):
-                self.recent[direction].append((int(index), values(row)))
+            rows = [_row(int(index), values(row)) for index, *row in data.get("recent", {}).get(direction, [])]
+            self.recent[direction] = np.array(rows, dtype=float).reshape(-1, 1 + len(FEATURES))[-RECENT_THROWS:]
             # a state saved before profiles were kept has none: the binding test waits for a new commissioning
             self.profiles[direction] = [curve(p) for p in data.get("profiles", {}).get(direction, [])][:self.needed]
             self.profile[direction] = curve(data.get("profile", {}).get(direction))

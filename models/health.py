@@ -158,20 +158,25 @@ class TrendFilter:
 
 
 _STALE = object()  # a History's fit before it is computed, or after an estimate came
-Row = tuple[float, float, float, int]  # a History's: throw, value, its fit's variance, how many estimates it merges
+# A History's rows, one per estimate kept: throw, value, its fit's variance, how many estimates it merges. An array,
+# not a list of tuples of floats: a switch keeps one per parameter, each up to HISTORY rows, for as long as it serves.
+ROW_COLUMNS = 4
 
 
-def _merged(a: Row, b: Row) -> Row:
-    """Two rows of a History as one: throw, value and variance averaged by their counts, the counts added."""
-    n = a[3] + b[3]
-    return (*((x * a[3] + y * b[3]) / n for x, y in zip(a[:3], b[:3])), n)
+def _merged(old: np.ndarray) -> np.ndarray:
+    """Consecutive pairs of rows each as one: throw, value and variance averaged by their counts, the counts
+    added (an odd last row is left out)."""
+    a, b = old[0:-1:2], old[1::2]
+    n = a[:, 3:] + b[:, 3:]
+    return np.hstack([(a[:, :3] * a[:, 3:] + b[:, :3] * b[:, 3:]) / n, n])
 
 
 @dataclass
 class History:
-    """A parameter's estimates over the throws: (throw, value, its fit's variance, how many estimates it merges)."""
+    """A parameter's estimates over the throws: rows of (throw, value, its fit's variance, how many estimates it
+    merges)."""
 
-    rows: list[Row] = field(default_factory=list)
+    rows: np.ndarray = field(default_factory=lambda: np.empty((0, ROW_COLUMNS)))
     pending: tuple[float, float, float] | None = None  # the latest estimate, when the filter took it for an outlier
     _line: object = field(default=_STALE, repr=False, compare=False)  # the latest fit (fit_broken_stick's)
 
@@ -185,18 +190,18 @@ class History:
             self.add(throw, value, variance)
 
     def add(self, throw: float, value: float, variance: float) -> None:
-        self.rows.append((float(throw), float(value), float(variance), 1))
+        self.rows = np.vstack([self.rows, [float(throw), float(value), float(variance), 1.0]])
         self._line = _STALE
         if len(self.rows) > HISTORY:  # halve the resolution of the older half, keep the recent half whole
             old, recent = self.rows[:HISTORY // 2], self.rows[HISTORY // 2:]
-            merged = [_merged(a, b) for a, b in zip(old[::2], old[1::2])]
-            self.rows = merged + old[len(merged) * 2:] + recent
+            merged = _merged(old)
+            self.rows = np.vstack([merged, old[len(merged) * 2:], recent])
 
     def broken_stick(self, now: float) -> tuple[np.ndarray, np.ndarray, float] | None:
         """(line, slope) at `now`, their covariance and how far the path strays from the line (a variance), from
         the best flat-then-straight fit; None while no such fit is better than a level alone."""
         if self._line is _STALE:
-            self._line = fit_broken_stick(*(np.array(c, dtype=float) for c in zip(*self.rows))) if self.rows else None
+            self._line = fit_broken_stick(*self.rows.T.copy()) if len(self.rows) else None
         if self._line is None:
             return None
         hinge, coefficients, covariance, path = self._line
@@ -204,12 +209,13 @@ class History:
         return at @ coefficients, at @ covariance @ at.T, path
 
     def to_dict(self) -> dict:
-        return {"rows": [list(row) for row in self.rows],
+        return {"rows": [[t, v, var, int(n)] for t, v, var, n in self.rows.tolist()],
                 "pending": None if self.pending is None else list(self.pending)}
 
     @classmethod
     def from_dict(cls, data: dict) -> History:
-        rows = [(float(t), float(v), float(var), int(n)) for t, v, var, n in data["rows"]]
+        rows = np.array([[float(t), float(v), float(var), int(n)] for t, v, var, n in data["rows"]],
+                        dtype=float).reshape(-1, ROW_COLUMNS)
         pending = data.get("pending")
         return cls(rows, None if pending is None else tuple(float(x) for x in pending))
 
@@ -347,7 +353,7 @@ class HealthTracker:
     def to_dict(self) -> dict:
         """What a restarted diagnoser needs to go on tracking: every filter and the alarm states."""
         return {"filters": {name: f.to_dict() for name, f in self.filters.items()}, "states": dict(self.states),
-                "histories": {name: h.to_dict() for name, h in self.histories.items() if h.rows},
+                "histories": {name: h.to_dict() for name, h in self.histories.items() if len(h.rows)},
                 "calls": {name: list(call) for name, call in self._calls.items()},
                 "last_throw": self.last_throw, "renumbered": self.renumbered}
 
@@ -361,8 +367,8 @@ class HealthTracker:
         self.states.update({name: s for name, s in data["states"].items() if name in self.states})
         self._calls.update({name: (c[0], int(c[1])) for name, c in data["calls"].items() if name in self._calls})
         # a state saved before these were kept: its histories' latest throw
-        self.last_throw = data.get("last_throw", max((h.rows[-1][0] for h in self.histories.values() if h.rows),
-                                                     default=None))
+        self.last_throw = data.get("last_throw", max((float(h.rows[-1, 0]) for h in self.histories.values()
+                                                      if len(h.rows)), default=None))
         self.renumbered = int(data.get("renumbered", 0))
 
     def _place(self, throw_index: int) -> float:

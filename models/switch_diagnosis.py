@@ -91,8 +91,8 @@ GAP_TOLERANCE = 0.25  # of a sample period, for "the samples are evenly spaced"
 # ends; it is cut short only when it ends while the motor is still asked to turn (or, where measured, still
 # turns) at more than STILL_SHARE of its top speed (models/features.py: where the motor has stopped).
 # The throws a decided fault's size is combined over: those since it appeared, at most the latest TRACKED_THROWS (ten
-# days of a switch's throws). Each throw of a fault left in place adds to its switch's memory (about 1 kB as
-# ThrowVerdict.tracked keeps it; kept whole, 117 kB and without end); combined over so many, the model's error, whose
+# days of a switch's throws). Each throw of a fault left in place adds to its switch's memory (a Tracked: the
+# fault's few parameters; figures in docs/results.md, benchmarks.memory); combined over so many, the model's error, whose
 # common part does not average out (ErrorModel.std), is what the combined size's std holds.
 TRACKED_THROWS = 1000
 MAX_THROW_S = 30.0  # longer than any point machine's throw, stalled or not
@@ -499,17 +499,30 @@ class ThrowVerdict:
 
     def kept(self) -> ThrowVerdict:
         """The verdict as its switch keeps it for the next throws (their warm starts, the slopes they borrow, what
-        settles them, evidence, reports): without the fits' residuals and the fitted outputs, which no later throw
-        reads, and with slopes only after a throw that showed nothing new, the only ones a later throw borrows (a
-        settled throw follows such a one: ThrowEstimator.fit_all). Kept whole, a verdict held 115 kB."""
-        return replace(self, estimates={mode: e.kept(slopes=self.mode == "nominal") for mode, e in self.estimates.items()},
-                       fitted={})
+        settles them): without the fits' residuals, the fitted outputs, the evidence and the reports, which no later
+        throw reads (the switch keeps its own evidence, and a fault's track its Tracked), and with slopes only after
+        a throw that showed nothing new, the only ones a later throw borrows (a settled throw follows such a one:
+        ThrowEstimator.fit_all)."""
+        estimates = {mode: e.kept(slopes=self.mode == "nominal") for mode, e in self.estimates.items()}
+        return replace(self, estimates=estimates, fitted={}, evidence={}, reported={})
 
-    def tracked(self, mode: str) -> ThrowVerdict:
-        """What combining a fault over its throws reads of this one (SwitchDiagnoser.combine): its index, direction
-        and the fault's report."""
-        return replace(self, mode=mode, evidence={}, estimates={}, fitted={},
-                       reported={name: r for name, r in self.reported.items() if name == mode})
+
+@dataclass(frozen=True, slots=True)
+class Tracked:
+    """What combining a fault over its throws reads of one throw (SwitchDiagnoser.combine): the throw's index and
+    the fault's parameters as that throw reported them, with the fit's own std, in MODE_PARAMETERS order. A switch
+    keeps one per throw of each present fault, up to TRACKED_THROWS: a few numbers, not the throw's verdict."""
+
+    index: int
+    params: tuple[float, ...]
+    fit_std: tuple[float, ...]
+
+    @classmethod
+    def of(cls, verdict: ThrowVerdict, mode: str) -> Tracked:
+        report = verdict.reported[mode]
+        names = MODE_PARAMETERS[mode]
+        return cls(verdict.index, tuple(float(report.params[n]) for n in names),
+                   tuple(float(report.fit_std[n]) for n in names))
 
 
 @dataclass(frozen=True)
@@ -913,7 +926,7 @@ class SwitchDiagnoser:
                 self.candidates[direction] = [*self.candidates[direction], record][-self.baseline.needed:]
         for mode, fault in self.faults.items():
             if mode in judged and mode in reported:
-                fault.track.append(verdict.tracked(mode))
+                fault.track.append(Tracked.of(verdict, mode))
         standing = self._standing(direction, provisional, bool(added or repaired), suspected)
         if provisional and self.baseline.complete:  # from now on its estimates depart from its own baseline
             self.health.reset()
@@ -1331,13 +1344,13 @@ class SwitchDiagnoser:
         """Each present fault's size combined over the throws since it was confirmed that see it."""
         return {mode: combined for mode in sorted(self.faults) if (combined := self._combined(mode)) is not None}
 
-    def combine(self, mode: str, verdicts: list[ThrowVerdict]) -> Combined:
+    def combine(self, mode: str, verdicts: list[Tracked]) -> Combined:
         """A mode's parameters over several throws: the fits weighted by their variances, the model's error
         added as it stands after that many throws (its common part once, its per-throw part averaged)."""
         params, std, fit_std = {}, {}, {}
-        for name in MODE_PARAMETERS[mode]:
-            values = np.array([v.reported[mode].params[name] for v in verdicts])
-            fit = np.array([max(v.reported[mode].fit_std[name], 1e-12) for v in verdicts])
+        for k, name in enumerate(MODE_PARAMETERS[mode]):
+            values = np.array([v.params[k] for v in verdicts])
+            fit = np.array([max(v.fit_std[k], 1e-12) for v in verdicts])
             weights = 1.0 / fit**2
             mean = float(np.sum(weights * values) / np.sum(weights))
             params[name], fit_std[name] = mean, float(np.sqrt(1.0 / np.sum(weights)))
@@ -1346,7 +1359,7 @@ class SwitchDiagnoser:
                 std[name] = float(np.hypot(std[name], self._unseen_chairs(verdicts, weights)))
         return Combined(mode, params, std, len(verdicts), verdicts[0].index, fit_std)
 
-    def _unseen_chairs(self, verdicts: list[ThrowVerdict], weights: np.ndarray) -> float:
+    def _unseen_chairs(self, verdicts: list[Tracked], weights: np.ndarray) -> float:
         """What the chairs may have done since the throw before `verdicts` began, in bearing friction: a throw tells
         their sum with a bearing's, not the split (CHAIRS_AS_BEARING), and only healthy throws move the chairs'
         prior (Baseline.follow), so a bearing fitted k throws after the last healthy one holds what the chairs did

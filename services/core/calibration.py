@@ -49,6 +49,7 @@ from railswitch.models.switch_diagnosis import (
     ErrorModel,
     SwitchDiagnoser,
     ThrowInput,
+    Tracked,
     measurement,
     observable,
     population,
@@ -201,7 +202,7 @@ def estimate_errors(diagnoser: Diagnoser, plant: Plant, weight: float, gains: di
         for throw in (throw_input(source.next()) for _ in range(FAULTY_THROWS)):
             outcome = switch.diagnose(throw)
             if outcome.verdict is not None and observable(case.mode, throw.direction):
-                seeing.append(outcome.verdict)
+                seeing.append(Tracked.of(outcome.verdict, case.mode))
         if not seeing:
             continue
         combined = switch.combine(case.mode, seeing)  # through a neutral error model: the raw estimates

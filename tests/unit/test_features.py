@@ -1,7 +1,10 @@
 """A throw's features (issue 40), computed from the samples alone, the same from any source."""
-import numpy as np
+import json
 
-from railswitch.models.features import FEATURES, FeatureTrends, throw_features
+import numpy as np
+import pytest
+
+from railswitch.models.features import FEATURES, RECENT_THROWS, FeatureTrends, throw_features
 from railswitch.models.reference import Reference
 from railswitch.models.signals import MotorSignals
 
@@ -40,8 +43,16 @@ def test_a_commissioned_band_flags_a_feature_outside_it_and_follows_its_slope():
         last = trends.update(k, "left_to_right", {"peak_current_a": 2.05 + 0.1 * (k - 10)})
     assert last[0]["state"] == "outside" and abs(last[0]["slope_per_100"] - 10.0) < 0.5
     again = FeatureTrends(needed=3)
-    again.load(trends.to_dict())
+    again.load(json.loads(json.dumps(trends.to_dict())))
     assert again.band("left_to_right", "peak_current_a") == (mean, low, high)
+    latest = trends.latest("left_to_right", "peak_current_a")
+    assert again.latest("left_to_right", "peak_current_a") == pytest.approx(latest)  # kept to six digits
+    assert again.latest("left_to_right", "lock_current_a") is None is trends.latest("right_to_left", "peak_current_a")
+    after, reloaded = (t.update(20, "left_to_right", {"peak_current_a": 3.2}) for t in (trends, again))
+    assert reloaded[0]["slope_per_100"] == pytest.approx(after[0]["slope_per_100"], rel=1e-9)
+    for k in range(21, 21 + RECENT_THROWS):  # the slope is over the latest RECENT_THROWS alone: a level one is 0
+        last = trends.update(k, "left_to_right", {"peak_current_a": 2.0})
+    assert last[0]["slope_per_100"] == pytest.approx(0.0, abs=1e-9)
 
 
 def test_the_stroke_profile_places_a_load_by_the_rod_s_share_of_its_stroke_either_way():

@@ -127,7 +127,7 @@ def test_a_missing_bearing_carries_what_the_chairs_may_have_done_since_the_last_
     larger, 3.7 std off without it). One throw, or a switch not commissioned (no drift prior), adds nothing."""
     from railswitch.models.reference import DIRECTIONS
     from railswitch.models.switch_diagnosis import (CHAIRS_AS_BEARING, DRIFT, DRIFTING, Baseline, Reported,
-                                                    population)
+                                                    Tracked, population)
 
     unused = SimpleNamespace(reduced=SimpleNamespace(params=SimpleNamespace(plant=SimpleNamespace(drive=None))))
     baseline = Baseline()
@@ -140,9 +140,9 @@ def test_a_missing_bearing_carries_what_the_chairs_may_have_done_since_the_last_
     fresh = SwitchDiagnoser(unused, population(), ErrorModel())
 
     def verdicts(count):
-        return [SimpleNamespace(index=10 + k, reported={"missing_bearing": Reported(
-            "missing_bearing", {"bearing_friction": 5000.0}, {}, 0.0, fit_std={"bearing_friction": 100.0})})
-            for k in range(count)]
+        return [Tracked.of(SimpleNamespace(index=10 + k, reported={"missing_bearing": Reported(
+            "missing_bearing", {"bearing_friction": 5000.0}, {}, 0.0, fit_std={"bearing_friction": 100.0})}),
+            "missing_bearing") for k in range(count)]
 
     assert commissioned.combine("missing_bearing", verdicts(1)).std["bearing_friction"] == pytest.approx(100.0)
     six = commissioned.combine("missing_bearing", verdicts(6))
