@@ -1,9 +1,11 @@
 """docs/results.md from the benchmarks: runs each (or reads the JSON it printed before) and rewrites the file.
 
 `python -m benchmarks.report` runs every benchmark of RUNS in turn (an hour or two on 2 cores), keeps each one's last
-JSON line in out/results/<name>.json, and writes docs/results.md: one table per benchmark, a column per
-representation where it runs per representation. `--only NAME` reruns those and reuses the others' kept JSON;
-`--from DIR` reruns nothing. Every figure in the file comes from one of these JSON objects; nothing is typed in.
+JSON line in docs/results/<name>.json with the command, the commit and the day it ran (committed with the project, so
+a fresh clone can rerun some and keep the rest), and writes docs/results.md: one table per benchmark, a column per
+representation where it runs per representation, each under the commit its figures come from. `--only NAME` reruns
+those and reuses the others' kept JSON; `--from DIR` reruns nothing. Every figure in the file comes from one of these
+JSON objects; nothing is typed in.
 """
 from __future__ import annotations
 
@@ -124,13 +126,17 @@ def commit() -> str:
         return "unknown"
 
 
-def render(results: dict[str, dict], sources: dict[str, str]) -> str:
+def render(results: dict[str, dict], sources: dict[str, str], ran: dict[str, str] | None = None) -> str:
+    """The file: per benchmark its commands, each with the commit and day it ran (`ran`), and its table."""
+    ran = ran or {}
     lines = ["# Results", "",
              "Written by `python -m benchmarks.report` from the JSON each benchmark printed last; do not edit by hand.",
              "Code comments and docstrings point here rather than quote a figure. Speed figures are ratios measured in",
              "one run, since machines of one kind differ by 2x; the targets are in each benchmark's docstring and in",
              "the issues they serve.", "",
-             f"- machine: {machine()}", f"- commit: {commit()}",
+             "Each benchmark's figures come from the commit named after its command; a change that touches what a",
+             "benchmark measures reruns it (`--only NAME`).", "",
+             f"- machine: {machine()}", f"- written at commit: {commit()}",
              f"- written: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC", ""]
     for run in RUNS:
         cols = columns(run, results)
@@ -138,7 +144,8 @@ def render(results: dict[str, dict], sources: dict[str, str]) -> str:
         if not cols:
             lines += ["Not run for this file.", ""]
             continue
-        lines += ["Command: " + "; ".join(f"`{sources[name]}`" for name in run.names() if name in sources), ""]
+        lines += ["Command: " + "; ".join(f"`{sources[name]}`" + (f" ({ran[name]})" if ran.get(name) else "")
+                                          for name in run.names() if name in sources), ""]
         lines += [*table(cols), ""]
     return "\n".join(lines)
 
@@ -177,8 +184,10 @@ def run_benchmark(run: Run, name: str, cores: Cores, kept: Path) -> None:
         cores.give(taken)
     if done.returncode != 0:
         raise RuntimeError(f"{' '.join(command[1:])} exited with {done.returncode}:\n{done.stderr[-2000:]}")
-    (kept / f"{name}.json").write_text(json.dumps({"command": command[1:], "wall_s": round(time.monotonic() - started),
-                                                   "result": json.loads(done.stdout.strip().splitlines()[-1])}))
+    (kept / f"{name}.json").write_text(json.dumps({
+        "command": command[1:], "wall_s": round(time.monotonic() - started), "commit": commit(),
+        "machine": machine(), "ran": f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d}",
+        "result": json.loads(done.stdout.strip().splitlines()[-1])}, indent=1) + "\n")
 
 
 def main() -> int:
@@ -187,7 +196,7 @@ def main() -> int:
                    help="render from the <name>.json files kept in DIR; run nothing")
     p.add_argument("--only", action="append", default=[], choices=[run.benchmark for run in RUNS],
                    help="run these benchmarks; reuse the others' kept JSON")
-    p.add_argument("--kept", type=Path, default=ROOT / "out" / "results", help="where each run's JSON is kept")
+    p.add_argument("--kept", type=Path, default=ROOT / "docs" / "results", help="where each run's JSON is kept")
     p.add_argument("--out", type=Path, default=ROOT / "docs" / "results.md")
     p.add_argument("--jobs", type=int, default=1, help="benchmarks run at once, each on a core of its own (those that "
                                                        "run workers of their own have the machine to themselves)")
@@ -201,8 +210,17 @@ def main() -> int:
             failed = [error for error in pool.map(lambda job: attempt(*job, cores, kept), chosen) if error]
         for error in failed:
             print(error, file=sys.stderr)
+    results, sources, ran = kept_runs(kept)
+    args.out.write_text(render(results, sources, ran))
+    print(f"wrote {args.out} from {len(results)} runs", file=sys.stderr)
+    return 1 if args.source is None and failed else 0
+
+
+def kept_runs(kept: Path) -> tuple[dict[str, dict], dict[str, str], dict[str, str]]:
+    """The runs kept in `kept`, by name: each one's JSON object, its command, and the commit and day it ran."""
     results: dict[str, dict] = {}
     sources: dict[str, str] = {}
+    ran: dict[str, str] = {}
     for run in RUNS:
         for name in run.names():
             path = kept / f"{name}.json"
@@ -210,9 +228,8 @@ def main() -> int:
                 kept_run = json.loads(path.read_text())
                 results[name] = kept_run["result"]
                 sources[name] = "python " + " ".join(kept_run["command"])
-    args.out.write_text(render(results, sources))
-    print(f"wrote {args.out} from {len(results)} runs", file=sys.stderr)
-    return 1 if args.source is None and failed else 0
+                ran[name] = ", ".join(kept_run[k] for k in ("commit", "ran") if kept_run.get(k))
+    return results, sources, ran
 
 
 def attempt(run: Run, name: str, cores: Cores, kept: Path) -> str | None:

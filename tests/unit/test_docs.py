@@ -1,9 +1,10 @@
 """The manual a newcomer reads: a short README whose links resolve, a user guide that has every command, and a
 results file that only benchmarks.report writes."""
+import json
 import re
 from pathlib import Path
 
-from benchmarks.report import RUNS, columns, render
+from benchmarks.report import RUNS, columns, kept_runs, render
 from railswitch.services.commands.cli import COMMANDS
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -41,3 +42,16 @@ def test_the_results_file_tabulates_each_representation_of_a_kept_run_and_says_w
     text = render(results, {name: f"python -m benchmarks.{per_model.benchmark}" for name in results})
     assert "| `latency_ms.p50` | 32.5 | 30.25 |" in text
     assert text.count("Not run for this file.") == len(RUNS) - 1
+
+
+def test_the_results_file_is_what_its_kept_runs_render():
+    """docs/results.md is rewritten from docs/results/*.json, never edited: rendered again from them, it is the same
+    but for when and at which commit it was written; each kept run names the commit it ran at."""
+    kept = ROOT / "docs" / "results"
+    results, sources, ran = kept_runs(kept)
+    assert results, "no kept runs in docs/results"
+    assert all(json.loads(path.read_text()).get("commit") for path in kept.glob("*.json"))
+
+    def body(text: str) -> list[str]:
+        return [line for line in text.splitlines() if not line.startswith(("- written", "- machine"))]
+    assert body(render(results, sources, ran)) == body((ROOT / "docs" / "results.md").read_text())
