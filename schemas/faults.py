@@ -1,8 +1,9 @@
 """The fault modes and parameters of docs/contracts.md section 2, as data shared by every part."""
 
-import math
 from dataclasses import dataclass
 from typing import Literal, get_args
+
+from railswitch.schemas.ranges import check_in_range
 
 FaultMode = Literal["left_bolt", "right_bolt", "missing_bearing", "obstacle", "drive_friction"]
 Decision = Literal["nominal", FaultMode, "unknown"]
@@ -47,12 +48,6 @@ MODE_PARAMETERS: dict[FaultMode, tuple[str, ...]] = {
 }
 
 
-def _fmt(x: float) -> str:
-    """Shortest text that reads back exactly: 300000 rather than 300000.0."""
-    short = f"{x:g}"
-    return short if float(short) == x else repr(x)
-
-
 def check_fault_name(name: str) -> str:
     """Return name if it is a fault parameter, else raise ValueError listing the accepted names."""
     if name not in FAULT_PARAMETERS:
@@ -67,13 +62,4 @@ def check_fault_value(name: str, value: float | str) -> float:
     Strings are parsed, so a command line can pass the text after NAME= unchanged.
     """
     p = FAULT_PARAMETERS[check_fault_name(name)]
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}={value!r} is not a number") from None
-    if not math.isfinite(x):
-        raise ValueError(f"{name}={value} is not a finite number")
-    if not p.low <= x <= p.high:
-        accepted = f"{_fmt(p.low)} … {_fmt(p.high)} {p.unit}"
-        raise ValueError(f"{name}={_fmt(x)} is outside the accepted range {accepted}")
-    return x
+    return check_in_range(name, value, p.low, p.high, p.unit)

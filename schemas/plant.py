@@ -4,8 +4,9 @@
 Names are `group.field` of the plant's parameter groups (motor, drive, rail). The nominal values are the
 plant's own defaults; a test holds the two to account.
 """
-import math
 from dataclasses import dataclass
+
+from railswitch.schemas.ranges import check_in_range
 
 
 @dataclass(frozen=True)
@@ -44,25 +45,12 @@ PLANT_PARAMETERS: dict[str, PlantParameter] = {
 }
 
 
-def _fmt(x: float) -> str:
-    short = f"{x:g}"
-    return short if float(short) == x else repr(x)
-
-
 def check_plant_value(name: str, value: float | str) -> float:
     """Return value as a float if name is a plant parameter and the value finite and in range; else ValueError."""
     if name not in PLANT_PARAMETERS:
         raise ValueError(f"unknown plant parameter {name!r}; accepted: {', '.join(PLANT_PARAMETERS)}")
     p = PLANT_PARAMETERS[name]
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}={value!r} is not a number") from None
-    if not math.isfinite(x):
-        raise ValueError(f"{name}={value} is not a finite number")
-    if not p.low <= x <= p.high:
-        raise ValueError(f"{name}={_fmt(x)} is outside the accepted range {_fmt(p.low)} … {_fmt(p.high)} {p.unit}")
-    return x
+    return check_in_range(name, value, p.low, p.high, p.unit)
 
 
 def check_plant_values(values: dict[str, float]) -> dict[str, float]:

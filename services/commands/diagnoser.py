@@ -34,11 +34,11 @@ from railswitch.services.adapters.zenoh_bus import (
     query_all,
     recent_throws,
 )
-from railswitch.services.commands.options import add_model_argument, add_service_arguments, bounded, run_service
+from railswitch.services.commands.options import add_model_argument, add_service_arguments, bounded, run_service, shard
 from railswitch.services.core.fleet_diagnoser import Diagnoser
 from railswitch.services.core.live_diagnoser import LiveDiagnoser
 from railswitch.services.core.membership import Membership
-from railswitch.services.core.shards import FixedShard, parse_shard
+from railswitch.services.core.shards import FixedShard
 
 log = logging.getLogger("railswitch.diagnoser")
 
@@ -112,13 +112,6 @@ def run_diagnoser(options: BusOptions, *, model: str, shard: tuple[int, int] | N
         return live.diagnosed
     finally:
         session.close()
-
-
-def shard(text: str) -> tuple[int, int]:
-    try:
-        return parse_shard(text)
-    except ValueError as error:
-        raise argparse.ArgumentTypeError(str(error)) from None
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
