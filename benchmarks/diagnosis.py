@@ -23,6 +23,7 @@
 from __future__ import annotations
 
 import statistics
+from collections.abc import Iterable
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -33,7 +34,7 @@ from benchmarks.common import emit, parser, pin_to_one_core
 from benchmarks.paper_de import PaperEstimator, paper_twin
 from railswitch.models.estimation import WITHOUT
 from railswitch.models.isolation import presence
-from railswitch.models.switch_diagnosis import SwitchDiagnoser, ThrowVerdict
+from railswitch.models.switch_diagnosis import ThrowVerdict
 from railswitch.models.plant import Plant
 from railswitch.models.switch import SwitchSimulation
 from railswitch.schemas import RAIL_MODELS, Diagnosis
@@ -73,7 +74,13 @@ def draw_cases(seed: int, per_mode: int, nominal: int) -> list[tuple[str, dict[s
     return cases
 
 
-def true_mode_estimate(switch: SwitchDiagnoser, mode: str) -> dict[str, float]:
+def latest_each_way(verdicts: Iterable[ThrowVerdict | None]) -> list[ThrowVerdict]:
+    """The latest of the verdicts in each direction (whole: a switch keeps its own without reports)."""
+    latest = {v.direction: v for v in verdicts if v is not None}
+    return list(latest.values())
+
+
+def true_mode_estimate(latest: Iterable[ThrowVerdict], mode: str) -> dict[str, float]:
     """The true mode's estimate from the latest throw (of each direction) that shows it best: a new fault by its
     evidence against the switch as it was, a present one by its presence (the switch as it is against the same
     without it), which is how the throws after the one that confirmed it test it."""
@@ -84,7 +91,7 @@ def true_mode_estimate(switch: SwitchDiagnoser, mode: str) -> dict[str, float]:
             return presence(v.estimates, mode).ratio
         return -1.0
 
-    verdicts = [v for v in switch.latest.values() if mode in v.reported]
+    verdicts = [v for v in latest if mode in v.reported]
     return max(verdicts, key=shown).reported[mode].params
 
 
@@ -99,14 +106,16 @@ class Timed:
         self.diagnoser = diagnoser
         self.signals = signals  # None: every signal the throw has; else these (what a unit logging less sends)
         self.seconds: list[float] = []
+        self.verdicts: dict[str, list[ThrowVerdict]] = {}  # per switch, its latest each way
 
     def __call__(self, throw: CutThrow) -> Diagnosis:
         if self.signals is not None:
             throw = replace(throw, signals=throw.signals.only(self.signals))
         start = time.perf_counter()
-        diagnosis = self.diagnoser.diagnose(throw).diagnosis
+        outcome = self.diagnoser.diagnose(throw)
         self.seconds.append(time.perf_counter() - start)
-        return diagnosis
+        self.verdicts[throw.switch_id] = latest_each_way([*self.verdicts.get(throw.switch_id, []), outcome.verdict])
+        return outcome.diagnosis
 
 
 def run_case(timed: Timed, plant: Plant, switch_id: str, faults: dict, noise: float, seed: int, throws: int = 2,
@@ -136,10 +145,11 @@ def paper_scenarios(timed: Timed, latencies: list[float], verbose: bool) -> tupl
     diagnoser = timed.diagnoser
     for name, (mode, truth) in PAPER_SCENARIOS.items():
         messages = load_recording(RECORDINGS / f"{name}.mcap").messages
-        diagnoses = [item.diagnosis for item in diagnose_messages(messages, diagnoser)]
+        items = list(diagnose_messages(messages, diagnoser))
+        diagnoses = [item.diagnosis for item in items]
         latencies += [d.latency_ms for d in diagnoses]
         switch_id = diagnoses[-1].switch_id
-        errors = relative_errors(true_mode_estimate(diagnoser.switches[switch_id], mode), truth)
+        errors = relative_errors(true_mode_estimate(latest_each_way(item.verdict for item in items), mode), truth)
         worst = max(worst, *errors.values())
         paper.append({"scenario": name, "decision": diagnoses[-1].named(), "correct": diagnoses[-1].named() == mode,
                       "rel_error": {k: round(v, 4) for k, v in errors.items()}})
@@ -165,12 +175,12 @@ def matrix(timed: Timed, plant: Plant, cases, seed: int, noise: float, latencies
         if mode == "nominal":
             false_alarms += decision != "nominal"
         else:
-            errors = relative_errors(true_mode_estimate(diagnoser.switches[switch_id], mode), faults)
+            errors = relative_errors(true_mode_estimate(timed.verdicts[switch_id], mode), faults)
             magnitude_errors.append(errors[MAGNITUDE[mode]])
         rows.append({"mode": mode, "faults": {n: round(v, 4) for n, v in faults.items()}, "decision": decision})
         if verbose:
             print(k, rows[-1], f"rel_error={magnitude_errors[-1]:.3f}" if mode != "nominal" else "")
-        del diagnoser.switches[switch_id]
+        del diagnoser.switches[switch_id], timed.verdicts[switch_id]
     nominal = sum(mode == "nominal" for mode, _ in cases)
     return {"cases": len(cases), "accuracy": round(correct / len(cases), 4),
             "median_rel_error": round(statistics.median(magnitude_errors), 4),
@@ -185,12 +195,15 @@ def paper_de(timed: Timed, kept: list, verbose: bool) -> dict:
     for faults, switch, throws in kept:
         mode = next(m for m, name in MAGNITUDE.items() if name in faults)
         for name, twin in (("ours", paper_twin(switch, switch.estimator)), ("paper_de", paper_twin(switch, estimator))):
+            verdicts = []
             for throw in throws:
                 start = time.perf_counter()
                 outcome = twin.diagnose(throw_input(throw))
                 results[name]["seconds"].append(time.perf_counter() - start)
+                verdicts.append(outcome.verdict)
             results[name]["correct"] += outcome.named() == mode
-            results[name]["errors"].append(max(relative_errors(true_mode_estimate(twin, mode), faults).values()))
+            estimate = true_mode_estimate(latest_each_way(verdicts), mode)
+            results[name]["errors"].append(max(relative_errors(estimate, faults).values()))
             if verbose:
                 print(name, mode, faults, outcome.named(), f"{results[name]['errors'][-1]:.4f}")
     out = {}
@@ -246,11 +259,12 @@ def main() -> None:
     p.add_argument("--de-cases", type=int, default=5, help="faulty cases the paper's estimator diagnoses too")
     p.add_argument("--skip", action="append", default=[], choices=["current_only", "mixed_stream", "paper_de"],
                    help="leave a part out (repeatable)")
+    p.add_argument("--lean", action="store_true", help="a lean diagnoser: no borrowed slopes (benchmarks.memory)")
     args = p.parse_args()
     core = pin_to_one_core()
     seed = args.seed if args.seed is not None else int(np.random.SeedSequence().entropy % 2**31)
     verbose = not args.json
-    diagnoser = Diagnoser(args.model)
+    diagnoser = Diagnoser(args.model, lean=args.lean)
     start = time.perf_counter()
     diagnoser.warm_up()
     build_s = time.perf_counter() - start
@@ -278,7 +292,7 @@ def main() -> None:
         result["current_only"] = current
     if "mixed_stream" not in args.skip:
         result["mixed_stream"] = mixed_stream(timed, plant, args.noise, seed, verbose)
-    result.update({"model": args.model, "build_seconds": round(build_s, 1), "core": core})
+    result.update({"model": args.model, "lean": args.lean, "build_seconds": round(build_s, 1), "core": core})
     emit(result, args.json)
 
 

@@ -19,7 +19,9 @@ switch warmed every cache:
   benchmark simulates with: an upper bound);
 - gib_for_10000: a diagnoser serving 10 000 switches, FAULTY_SHARE of them with a fault left in place for all of
   TRACKED_THROWS: process_mb, plus per_switch_kb and state_cache_kb each, plus the faulty ones' tracks, in GiB;
-  target: under 1 GiB.
+  target: under 1 GiB;
+- lean: per_switch_kb and gib_for_10000 of a lean diagnoser (`railswitch diagnoser --lean`: it keeps no slopes for
+  settled throws to borrow) over the same switches' throws, in the same process.
 """
 from __future__ import annotations
 
@@ -68,6 +70,34 @@ def rss_mb(field: str = "VmHWM") -> float:
     return float("nan")
 
 
+def ready(diagnoser: Diagnoser, warming: list) -> tuple[Diagnoser, dict[str, bytes]]:
+    """The diagnoser with its estimator built and every cache warmed by a throwaway switch, and where it puts each
+    switch's latest state as it goes on the bus (what the StateCache reads)."""
+    payloads: dict[str, bytes] = {}
+
+    def on_state(switch_id: str, state: dict) -> None:
+        payloads[switch_id] = encode(SwitchState(switch_id=switch_id, model=diagnoser.model,
+                                                 throw_index=len(payloads), t_ns=len(payloads), state=state))
+
+    diagnoser.warm_up()
+    diagnoser.on_state = on_state
+    for throw in warming:
+        diagnoser.diagnose(throw)
+    del diagnoser.switches["warming"], payloads["warming"]
+    return diagnoser, payloads
+
+
+def fleet_memory(diagnoser: Diagnoser, fleet: list[list], payloads: dict[str, bytes]) -> float:
+    """What the diagnoser keeps per switch after diagnosing every switch's throws (tracemalloc running), less the
+    states the benchmark keeps."""
+    start = traced()
+    for throws in fleet:
+        for throw in throws:
+            diagnoser.diagnose(throw)
+    kept_payloads = sum(sys.getsizeof(p) for p in payloads.values())  # the benchmark's, not the diagnoser's
+    return (traced() - start - kept_payloads) / len(fleet)
+
+
 def main() -> None:
     p = parser(__doc__.splitlines()[0])
     p.add_argument("--model", choices=RAIL_MODELS, default="poly")
@@ -86,28 +116,12 @@ def main() -> None:
                       healthy=commissioning)
     warming = simulated(plant, "warming", args.seed + 1, commissioning + 2)
 
-    diagnoser = Diagnoser(args.model)
-    diagnoser.warm_up()
-    payloads: dict[str, bytes] = {}  # each switch's latest state as it goes on the bus (what the StateCache reads)
-
-    def on_state(switch_id: str, state: dict) -> None:
-        payloads[switch_id] = encode(SwitchState(switch_id=switch_id, model=args.model, throw_index=len(payloads),
-                                                 t_ns=len(payloads), state=state))
-
-    diagnoser.on_state = on_state
-    for throw in warming:
-        diagnoser.diagnose(throw)
-    del diagnoser.switches["warming"], payloads["warming"]
+    diagnoser, payloads = ready(Diagnoser(args.model), warming)
     gc.collect()
     process = rss_mb("VmRSS")
 
     tracemalloc.start()
-    start = traced()
-    for throws in fleet:
-        for throw in throws:
-            diagnoser.diagnose(throw)
-    kept_payloads = sum(sys.getsizeof(p) for p in payloads.values())  # the benchmark's, not the diagnoser's
-    per_switch = (traced() - start - kept_payloads) / args.switches
+    per_switch = fleet_memory(diagnoser, fleet, payloads)
     for throw in loose:
         outcome = diagnoser.diagnose(throw)
     tracks = [fault.track for fault in diagnoser.switches["loose"].faults.values()]
@@ -123,16 +137,25 @@ def main() -> None:
     per_state = (traced() - before) / len(payloads)
     tracemalloc.stop()
 
+    # the same switches' throws through a lean diagnoser (no borrowed slopes), in the same process
+    lean, lean_payloads = ready(Diagnoser(args.model, lean=True), warming)
+    tracemalloc.start()
+    lean_per_switch = fleet_memory(lean, fleet, lean_payloads)
+    tracemalloc.stop()
+
     kb = 1024.0
     tracked = switch_diagnosis.TRACKED_THROWS
     faulty = FAULTY_SHARE * SWITCHES * tracked * per_faulty_throw
     gib = (process * 2**20 + SWITCHES * (per_switch + per_state) + faulty) / 2**30
+    lean_gib = (process * 2**20 + SWITCHES * (lean_per_switch + per_state) + faulty) / 2**30
     result = {"per_switch_kb": round(per_switch / kb, 1), "per_faulty_throw_kb": round(per_faulty_throw / kb, 2),
               "tracked_throws": tracked, "state_cache_kb": round(per_state / kb, 1),
               "process_mb": process, "faulty_track_mb": round(tracked * per_faulty_throw / 2**20, 2),
               "gib_for_10000": round(gib, 2), "target_gib": TARGET_GIB, "met": gib <= TARGET_GIB,
               "faulty_decision": outcome.diagnosis.decision, "switches": args.switches,
               "throws_per_switch": commissioning + args.service, "faulty_throws": args.faulty,
+              "lean": {"per_switch_kb": round(lean_per_switch / kb, 1), "gib_for_10000": round(lean_gib, 2),
+                       "met": lean_gib <= TARGET_GIB},
               "peak_rss_mb": rss_mb(), "model": args.model, "core": core}
     emit(result, args.json)
 

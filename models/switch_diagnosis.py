@@ -497,13 +497,13 @@ class ThrowVerdict:
         """The faults a hypothesis of this throw was fitted with."""
         return modes_of(label, self.base, self.direction)
 
-    def kept(self) -> ThrowVerdict:
+    def kept(self, slopes: bool = True) -> ThrowVerdict:
         """The verdict as its switch keeps it for the next throws (their warm starts, the slopes they borrow, what
         settles them): without the fits' residuals, the fitted outputs, the evidence and the reports, which no later
         throw reads (the switch keeps its own evidence, and a fault's track its Tracked), and with slopes only after
         a throw that showed nothing new, the only ones a later throw borrows (a settled throw follows such a one:
-        ThrowEstimator.fit_all)."""
-        estimates = {mode: e.kept(slopes=self.mode == "nominal") for mode, e in self.estimates.items()}
+        ThrowEstimator.fit_all), and never without `slopes` (SwitchDiagnoser.lean)."""
+        estimates = {mode: e.kept(slopes=slopes and self.mode == "nominal") for mode, e in self.estimates.items()}
         return replace(self, estimates=estimates, fitted={}, evidence={}, reported={})
 
 
@@ -563,8 +563,12 @@ class SwitchDiagnoser:
     """Diagnoses one switch throw by throw; holds its baseline, present faults, latest verdicts and health."""
 
     def __init__(self, estimator: ThrowEstimator, prior: Population, errors: ErrorModel | None = None,
-                 baseline: Baseline | None = None, limits: dict[str, float] | None = None):
+                 baseline: Baseline | None = None, limits: dict[str, float] | None = None, lean: bool = False):
         self.estimator = estimator
+        # lean: keep no slopes for the next throw to borrow, so its settled throws' fits compute their first
+        # Jacobian afresh: a switch keeps about half as much, each settled throw takes a little longer, and the
+        # fits end where SLOPES_AGE 0 ends them (figures in docs/results.md, benchmarks.memory and .diagnosis)
+        self.lean = lean
         self.prior = prior
         self.errors = errors or ErrorModel()
         self.baseline = baseline or Baseline()
@@ -909,7 +913,7 @@ class SwitchDiagnoser:
         repaired = self._repairs(direction, estimates, reported, gains, shown, judged,
                                  self.shortfall(start_rail, direction))
         added = None if repaired else self._additions(verdict, detected)
-        self.latest[direction] = verdict.kept()
+        self.latest[direction] = verdict.kept(slopes=not self.lean)
         self.rail_m = verdict.end_rail_m
         if "missing_bearing" in judged:
             self._follow_chairs(verdict)

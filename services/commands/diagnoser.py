@@ -73,7 +73,8 @@ class ElasticPeers:
 
 
 def run_diagnoser(options: BusOptions, *, model: str, shard: tuple[int, int] | None, stop: threading.Event,
-                  status_s: float = 5.0, state: str | None = None, kept_throws: int = KEPT_THROWS) -> int:
+                  status_s: float = 5.0, state: str | None = None, kept_throws: int = KEPT_THROWS,
+                  lean: bool = False) -> int:
     """Diagnose until stop is set (elastic without a shard); returns the number of diagnoses published."""
     session = open_session(dataclasses.replace(options, lease_ms=ELASTIC_LEASE_MS), stop=stop)
     try:
@@ -83,7 +84,7 @@ def run_diagnoser(options: BusOptions, *, model: str, shard: tuple[int, int] | N
         # warms up; an elastic diagnoser subscribes once ready, since the live ones serve everything until it joins.
         inbox = Inbox(session, INPUT_KEYS, CATCH_UP) if shard is not None else None
         baselines = BaselineStore(model, state)
-        diagnoser = Diagnoser(model, on_state=baselines.save, stored_state=baselines.load)
+        diagnoser = Diagnoser(model, on_state=baselines.save, stored_state=baselines.load, lean=lean)
         started = time.monotonic()
         diagnoser.warm_up()
         inbox = inbox or Inbox(session, INPUT_KEYS, CATCH_UP)  # before the state query: no state falls in between
@@ -126,9 +127,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--keep-throws", type=bounded(int, 1, 10_000), default=KEPT_THROWS, metavar="N",
                         help="each switch's latest N diagnoses and health messages kept for historians that were "
                              f"down or start late (default {KEPT_THROWS})")
+    parser.add_argument("--lean", action="store_true",
+                        help="keep about half as much per switch, for a little more time per throw: for a "
+                             "diagnoser that serves many switches (docs/results.md, benchmarks.memory)")
 
 
 def run(args: argparse.Namespace) -> int:
     return run_service(lambda options, stop: run_diagnoser(options, model=args.model, shard=args.shard, stop=stop,
                                                            status_s=args.status_interval, state=args.state,
-                                                           kept_throws=args.keep_throws), args)
+                                                           kept_throws=args.keep_throws, lean=args.lean), args)

@@ -80,6 +80,7 @@ class Diagnoser:
     last_throws: dict[str, tuple[int, int]] = field(default_factory=dict)
     books: dict[str, AlarmBook] = field(default_factory=dict)  # per switch: its open alarms, kept in its state
     maintenance: dict[str, dict] = field(default_factory=dict)  # switches in maintenance: since when, why
+    lean: bool = False  # keep about half as much per switch, for a little more time per throw (SwitchDiagnoser)
 
     def __post_init__(self) -> None:
         if self.model not in RAIL_MODELS:
@@ -119,7 +120,7 @@ class Diagnoser:
         """The diagnoser of one switch: resumed from its stored baseline, else commissioning afresh."""
         if switch_id not in self.switches:
             estimator = self.estimator
-            switch = SwitchDiagnoser(estimator, self._prior, self._errors)
+            switch = SwitchDiagnoser(estimator, self._prior, self._errors, lean=self.lean)
             stored = self.stored_state(switch_id) if self.stored_state is not None else None
             if stored is not None:
                 switch.resume(stored)
