@@ -17,7 +17,8 @@ COMMANDS: dict[str, str] = {  # name (and module) -> help
     "describe": "model statistics (states, parameters, rail nodes)",
     "train": "regenerate the reduced rail models from high-fidelity plant data",
     "calibrate": "calibrate the reduced models' bearing-fault port on plant throws",
-    "report": "PNG pictures of the throws in one or more recordings",
+    "report": "PNG pictures of the throws in one or more recordings, or of each switch's health from a history store "
+              "(an SQLite file or a PostgreSQL database)",
     "diagnose": "diagnose every throw of a recording offline",
     "recover": "copy what can be read from a damaged recording into a complete one",
     "router": "a Zenoh router (eclipse-zenoh in router mode) listening on --listen (default tcp/127.0.0.1:7447)",
@@ -30,8 +31,10 @@ COMMANDS: dict[str, str] = {  # name (and module) -> help
     "ack": "acknowledge a switch's alarms (all, or --alarm ID), with an optional --note",
     "maintenance": "--start or --end a switch's maintenance: its throws raise no alarm and teach nothing meanwhile",
     "fleet": "every switch by urgency: latched alarms first, then the fewest throws to a limit (bus or --db)",
-    "historian": "keep every diagnosis and health message in an SQLite file and answer history queries",
-    "history": "a switch's diagnoses and health over time, from the historians on the bus or a history file",
+    "historian": "keep every diagnosis and health message in an SQLite file or a PostgreSQL database and answer "
+                 "history queries",
+    "history": "a switch's diagnoses and health over time, from the historians on the bus or a history store (an "
+               "SQLite file or a PostgreSQL database)",
     "notify": "forward alarm changes to a webhook (JSON over HTTP POST, with retry)",
     "demo": "router, simulator, diagnoser, recorder and historian with a live table and summary",
 }

@@ -24,6 +24,8 @@ from railswitch.services.core.simulated_fleet import SwitchStream, own_parameter
 from railswitch.services.core.switch_messages import switch_messages
 
 LEAD_S = 1.0  # samples at rest before a scenario's first throw, as the live simulator has them
+# The options of one switch, which a scenario file replaces (all but --out): given beside --scenario, they are refused.
+SCENARIO_REPLACES = ("switch_id", "throws", "fault", "plant", "vary", "stroke", "throw_length", "noise", "seed", "rate")
 
 
 @dataclass(frozen=True)
@@ -87,23 +89,34 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, help="MCAP file to write")
     parser.add_argument("--scenario", metavar="F.toml", default=None,
                         help="a schedule of switches, throws and changes (docs/contracts.md), instead of the options below")
-    parser.add_argument("--switch-id", type=switch_id, default="sw1")
-    parser.add_argument("--throws", type=bounded(int, 1, 10_000), default=2, help="alternating, left to right first")
+    # Their defaults are None (applied in run) so that run can tell which were given beside --scenario.
+    parser.add_argument("--switch-id", type=switch_id, default=None, help="the switch (default sw1)")
+    parser.add_argument("--throws", type=bounded(int, 1, 10_000), default=None,
+                        help="alternating, left to right first (default 2)")
     parser.add_argument("--fault", type=fault_assignment, action="append", default=[], metavar="NAME=VALUE",
                         help="inject a fault, e.g. left_bolt_offset=0.05 (repeatable)")
     add_own_arguments(parser)
-    parser.add_argument("--noise", type=bounded(float, 0.0, 0.5), default=0.0, metavar="REL",
-                        help="Gaussian noise, std = REL x the signal's nominal peak")
-    parser.add_argument("--seed", type=bounded(int, 0, 2**32 - 1), default=0)
-    parser.add_argument("--rate", type=bounded(float, 1.0, 1000.0, "samples/s"), default=50.0, help="samples per second")
+    parser.add_argument("--noise", type=bounded(float, 0.0, 0.5), default=None, metavar="REL",
+                        help="Gaussian noise, std = REL x the signal's nominal peak (default 0)")
+    parser.add_argument("--seed", type=bounded(int, 0, 2**32 - 1), default=None, help="the noise's seed (default 0)")
+    parser.add_argument("--rate", type=bounded(float, 1.0, 1000.0, "samples/s"), default=None,
+                        help="samples per second (default 50)")
+
+
+def options_beside_scenario(args: argparse.Namespace) -> list[str]:
+    """The options given on the command line that a scenario file replaces (each of them is refused with it)."""
+    return [f"--{name.replace('_', '-')}" for name in SCENARIO_REPLACES if getattr(args, name) not in (None, [])]
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.scenario and (given := options_beside_scenario(args)):
+        return fail(f"--scenario excludes {', '.join(given)} (the file says it)")
     try:
         scenario = load_scenario(args.scenario) if args.scenario else None
     except ScenarioError as error:
         return fail(str(error))
-    total = sum(plan.throws for plan in scenario.switches) if scenario else args.throws
+    switch, throws = args.switch_id or "sw1", args.throws or 2
+    total = sum(plan.throws for plan in scenario.switches) if scenario else throws
     try:
         with Progress(transient=True, disable=not sys.stderr.isatty()) as progress:
             task = progress.add_task("simulating throws", total=total)
@@ -113,10 +126,10 @@ def run(args: argparse.Namespace) -> int:
             else:
                 from railswitch.schemas.scenario import SwitchPlan
 
-                own = own_parameters(SwitchPlan(id=args.switch_id, throws=1, plant=dict(args.plant), vary=args.vary))
-                summary = simulate_to_mcap(args.out, switch_id=args.switch_id, throws=args.throws, faults=dict(args.fault),
-                                           noise_rel=args.noise, seed=args.seed, rate_hz=args.rate, own=own,
-                                           stroke_s=args.stroke or STROKE_S, end_s=args.throw_length,
+                own = own_parameters(SwitchPlan(id=switch, throws=1, plant=dict(args.plant), vary=args.vary))
+                summary = simulate_to_mcap(args.out, switch_id=switch, throws=throws, faults=dict(args.fault),
+                                           noise_rel=args.noise or 0.0, seed=args.seed or 0, rate_hz=args.rate or 50.0,
+                                           own=own, stroke_s=args.stroke or STROKE_S, end_s=args.throw_length,
                                            progress=advance)
     except RecordingPathError as error:
         return fail(str(error))

@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import argparse
+import os
+from pathlib import Path
 
 from railswitch.models.training import STAGE_ITERATIONS
 from railswitch.services.commands.options import add_model_argument, bounded, fail, models_named
@@ -17,12 +19,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="threads that share the training data (default: one per core; the weights are the same)")
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--out", default=None, metavar="DIR",
-                       help="where to write <model>.json (default: the user's model directory, $RAILSWITCH_MODELS)")
+                       help="where to write <model>.json, created if missing (default: the user's model directory, "
+                            "$RAILSWITCH_MODELS)")
     where.add_argument("--replace-shipped", action="store_true",
                        help="overwrite the weights shipped inside the installed package")
 
 
+def prepare_out_dir(out: str) -> str | None:
+    """Make --out DIR ready before any training (it takes minutes): created with its parents if missing. The one
+    line that says why it cannot be used, else None."""
+    path = Path(out)
+    if path.exists() and not path.is_dir():
+        return (f"--out {out} exists and is not a directory (give a directory for <model>.json; one is created if "
+                "missing)")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        return f"--out {out}: cannot create the directory ({error.strerror or error})"
+    if not os.access(path, os.W_OK | os.X_OK):
+        return f"--out {out}: the directory is not writable (give one you can write to)"
+    return None
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.out is not None and (problem := prepare_out_dir(args.out)):
+        return fail(problem)
     try:
         for name in models_named(args.model):
             path, seconds = train_and_save(name, seed=args.seed, iterations=args.iterations, out_dir=args.out,

@@ -16,7 +16,7 @@ from rich.live import Live
 from rich.table import Table
 
 from railswitch.schemas import FAULT_PARAMETERS, Diagnosis, SwitchHealth, key_expr
-from railswitch.services.adapters.zenoh_bus import BusOptions, Inbox, open_session
+from railswitch.services.adapters.zenoh_bus import BusError, BusOptions, Inbox, open_session
 from railswitch.services.commands import options
 from railswitch.services.core.intake import Intake
 
@@ -98,8 +98,17 @@ def diagnosis_table(latest: dict[str, Diagnosis], health: dict[str, SwitchHealth
 
 def run_watch(options: BusOptions, *, switch_ids: list[str], count: int | None, duration_s: float | None,
               jsonl: bool, stop: threading.Event) -> int:
-    """Show diagnoses and health until stop, `count` diagnoses or `duration_s`; returns how many diagnoses arrived."""
-    session = open_session(options, stop=stop)
+    """Show diagnoses and health until stop, `count` diagnoses or `duration_s`; returns how many diagnoses arrived.
+
+    The duration counts from the start, connecting included: with no bus by then it gives up (BusError), at most one
+    retry and one connection attempt (about 3 s) later."""
+    deadline = None if duration_s is None else time.monotonic() + duration_s
+    try:
+        session = open_session(options, stop=stop, wait_s=duration_s)
+    except BusError as error:
+        if deadline is None or stop.is_set() or time.monotonic() < deadline:
+            raise
+        raise BusError(f"no bus within --duration {duration_s:g} s: {error}") from None
     try:
         keys = [key_expr(s, kind) for s in switch_ids for kind in ("diagnosis", "health")] or [
             "railswitch/*/diagnosis", "railswitch/*/health"]
@@ -110,7 +119,6 @@ def run_watch(options: BusOptions, *, switch_ids: list[str], count: int | None, 
         latest: dict[str, Diagnosis] = {}
         health: dict[str, SwitchHealth] = {}
         received = 0
-        deadline = None if duration_s is None else time.monotonic() + duration_s
         table = Live(diagnosis_table(latest), console=console, auto_refresh=False) if live_table else nullcontext()
         with table as live:
             while not stop.is_set() and (count is None or received < count):
@@ -151,7 +159,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--jsonl", action="store_true", help="one Diagnosis JSON object per line")
     parser.add_argument("--count", type=options.bounded(int, 1, 10**9), default=None, help="exit after N diagnoses")
     parser.add_argument("--duration", type=options.bounded(float, 0.1, 10**9, "s"), default=None,
-                        help="exit after S seconds")
+                        help="exit after S seconds, counted from the start (connecting included)")
 
 
 def run(args: argparse.Namespace) -> int:
