@@ -1,7 +1,7 @@
 # One image for every railswitch service: simulator, diagnoser, recorder, replay, watch.
 FROM python:3.11-slim
 
-# A C compiler lets CasADi compile the diagnosis model to machine code (about 3x faster fits).
+# A C compiler lets CasADi compile the diagnosis model to machine code (much faster fits).
 RUN apt-get update \
     && apt-get install -y --no-install-recommends gcc libc6-dev \
     && rm -rf /var/lib/apt/lists/*

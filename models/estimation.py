@@ -46,14 +46,14 @@ from railswitch.models.signals import MotorSignals
 
 # The model's grid: 10 ms, half the step the rails are trained at. On the 20 ms step itself an event (a bolt
 # taking up its play, an obstacle met) that moves across a step boundary leaves ripples in the error surface
-# where the solver stalls (a twin throw's 70 mm bolt fitted as 60 mm, the estimates' error twice as wide).
+# where the solver stalls (it stopped a twin throw's bolt well short of its length, and the estimates' error widened).
 MODEL_RATE_HZ = 100.0
 # Model samples per compiled call: 1 s. A throw's rollout is a whole number of chunks, so a shorter chunk
-# wastes less past the throw's last sample (a 7 s throw took four 2 s chunks, 12 % more than it needs).
+# wastes less past the throw's last sample (with 2 s chunks, a 7 s throw ran a whole second past its end).
 CHUNK_SAMPLES = 100
 # The grid ranks starting points 20 mm (a bolt, an obstacle's position) or a factor of two (a friction) apart:
 # which basin a point lies in, not where in it the minimum is. The ripples of a 20 ms step (above) are far
-# smaller than that, so the grid runs the model at the step it was trained at, for half the cost.
+# smaller than that, so the grid runs the model at the step it was trained at, in half as many steps.
 GRID_RATE_HZ = 50.0
 # Grid points evaluated in one mapped call: every hypothesis's grid of a throw at once (37 points for the
 # switch's hypotheses, models/switch_diagnosis.py) and each fault mode's warm start (4). A point costs what a
@@ -63,15 +63,15 @@ GRID_CAPACITY = 41
 SETTLED_CAPACITY = 12
 # A throw is settled when the switch's previous throw in its direction was healthy and this one's nominal fit
 # is within this share of that one's MSE: nothing has changed beyond what a healthy switch's MSE varies by from
-# one throw to the next (about sqrt(2 / N_eff), 6 % at a throw's 550 effective samples). A fault that has
+# one throw to the next (about sqrt(2 / N_eff), N_eff the throw's effective samples). A fault that has
 # appeared on a settled throw is a small one, so a settled throw ranks each hypothesis's `settled_grid`
 # (HypothesisSpec) and its warm start: none for a bearing's or the point machine's friction (their error
 # surface has one basin, which the warm start is in), a small obstacle's positions for the obstacle (one
 # fitted to a healthy throw sits at an end of the travel with no friction, where its position has no slope,
 # so from there it misses a new one), its mark (0) for a bolt: its offset moves the instant the blades do, so a bolt
-# that moves 10 mm raises the nominal fit's MSE by 38 % or more (poly, both directions), and one a settled throw can
-# hide is within a few millimetres of its warm fit or its mark. The bolt's whole grid (12 points) had started it at
-# its mark or its warm fit in each of 183 settled throws (poly and nn, switches of the population).
+# that moves 10 mm raises the nominal fit's MSE well beyond SETTLED (poly, both directions), and one a settled
+# throw can hide is within a few millimetres of its warm fit or its mark. On every settled throw of poly and
+# nn (switches of the population), the bolt's whole grid (12 points) had started it at its mark or its warm fit.
 SETTLED = 0.1
 # Order-one scales of the parameters for the solver.
 SCALES = {"left_bolt_offset": 0.05, "right_bolt_offset": 0.05, "bearing_friction": 5e3,
@@ -80,11 +80,11 @@ SCALES = {"left_bolt_offset": 0.05, "right_bolt_offset": 0.05, "bearing_friction
           "motor.supply_v": 10.0, "rail.chair_friction_coefficient": 0.01}
 # A fault's parameter whose error surface may hold more than one basin near the fit (HypothesisSpec.scanned),
 # where the solver stops in the first it meets. A bolt's did: the causal rail's, as fine-tuned before its inertia
-# was held (models/training.py), was a sawtooth with teeth about 4 mm wide that stopped a 132.5 mm bolt at 119.9 mm;
-# poly's and nn's have ripples of a few tenths of a per cent a millimetre apart, some of them lower than where
-# the solver stops. So once a scanned hypothesis fits a throw best and explains a tenth of the nominal fit's misfit
-# (SCAN_WHEN), its parameter is tried at SCAN_CAPACITY points SCAN_STEP apart around the fit, the rest held, and
-# refitted from the lowest where that is lower: two points on every 4 mm within 12 mm.
+# was held (models/training.py), was a sawtooth with teeth a few millimetres wide that stopped a bolt well short of
+# its length; poly's and nn's have shallow ripples closer together, some of them lower than where the solver stops.
+# So once a scanned hypothesis fits a throw best and explains a tenth of the nominal fit's misfit (SCAN_WHEN), its
+# parameter is tried at SCAN_CAPACITY points SCAN_STEP apart around the fit, the rest held, and refitted from the
+# lowest where that is lower: at least two points on every tooth, over several teeth either side.
 SCAN_STEP = 0.0015
 SCAN_CAPACITY = 16
 SCAN_OFFSETS = SCAN_STEP * np.concatenate([np.arange(-SCAN_CAPACITY // 2, 0), np.arange(1, SCAN_CAPACITY // 2 + 1)])
@@ -93,20 +93,20 @@ SCAN_ROUNDS = 3
 TOLERANCE = 1e-4  # relative decrease of the MSE below which a fit has converged
 # A fit that cannot beat a fault already shown stops (ThrowEstimator.fit_all): where its objective less this many
 # times what its linearisation promises at most is still above that fault's. On faulty throws (benchmarks.diagnosis's
-# cases, seeds 7 and 11, 143 throws per model), what a fit went on to gain from its start was a median 0.99 of its
-# first linearisation's promise, 2.5 to 5 at the 99th percentile (more only where the promise was a few 1e-3 of
-# the objective); the fault that ended best would have been stopped at a margin of 1.15 at most, had every other
-# fault been fitted before it (its start less 1.15 times its promise is above the next best fault's end).
+# cases, seeds 7 and 11), what a fit went on to gain from its start was typically about its first linearisation's
+# promise and seldom more than this margin times it (more only where the promise was a tiny part of the objective);
+# the fault that ended best would have been stopped only at a margin close to one, had every other fault been fitted
+# before it (its start less that margin times its promise is above the next best fault's end).
 HOPELESS_MARGIN = 5.0
 # On a settled throw, a fault mode's fit that starts where its fit of the switch's previous throw in the same direction
 # ended borrows that fit's Jacobian for its first step (Slopes; levenberg_marquardt's `jacobian`) instead of computing
 # one (ThrowEstimator.fit_all says where not): the model's slopes there are the same but for the throw's start and
 # the weather, which a throw or two moves little.
-# On poly's commissioning throws the borrowed slopes predicted the first step's decrease at 0.90 to 1.36 of the exact
-# ones (10th to 90th percentile, slopes computed one throw before). Slopes last computed this many throws back are not
+# On poly's commissioning throws the borrowed slopes (computed one throw before) predicted the first step's decrease
+# close to what the exact ones did. Slopes last computed this many throws back are not
 # borrowed: the fit computes them again, so Broyden's updates never stand in for them for long.
 SLOPES_AGE = 2
-OUTPUTS_KEPT = 32  # rollouts a prepared throw keeps (a throw's fits take about 12)
+OUTPUTS_KEPT = 32  # rollouts a prepared throw keeps (more than a throw's fits take)
 START_SIGMAS = 3.0  # fault modes start the nominal fit's nuisances within this many prior std of their means
 # The label of the hypothesis that is the switch as it now is without one of its present faults (a repair): WITHOUT
 # + mode.
@@ -244,9 +244,9 @@ class Prior:
 class Slopes:
     """A fit's Jacobian where it ended, as the model's own slopes: the derivative of each measured signal at each
     sample with respect to each free parameter, unscaled, each signal's over its largest in half precision (a step
-    needs their direction, not their last digits: 40 kB a switch's fault modes in each direction, where single
-    precision took 80; on 128 healthy throws the fits ended within 0.002 of their standard deviations of where
-    single precision's did). The next throw's fit of the same hypothesis borrows them where it starts at `z`."""
+    needs their direction, not their last digits: half the memory of single precision, and on healthy throws the
+    fits ended a negligible part of their standard deviations from where single precision's did). The next throw's
+    fit of the same hypothesis borrows them where it starts at `z`."""
 
     free: tuple[str, ...]
     z: np.ndarray  # the free parameters' values where the slopes hold
@@ -262,8 +262,8 @@ class Slopes:
         signals, samples = throw.measured.shape[1], throw.measured.shape[0]
         derivative = jacobian.reshape(signals, samples, len(free)) * (np.sqrt(throw.measured.size) /
                                                                       throw.inverse_scale[:, None, None])
-        # each signal's and parameter's largest over the samples, reduced along contiguous rows (a reduction over the
-        # middle axis of signals x samples x parameters took 41 us, this 11: a settled throw makes four)
+        # each signal's and parameter's largest over the samples, reduced along contiguous rows (several times faster
+        # than a reduction over the middle axis of signals x samples x parameters: a settled throw makes four)
         largest = np.maximum(np.abs(derivative.transpose(0, 2, 1).copy()).max(axis=2)[:, None, :], 1e-300)
         return cls(tuple(free), z.copy(), tuple(throw.rows), throw.period_s, (derivative / largest).astype(np.float16),
                    largest, age)
@@ -647,8 +647,8 @@ class ThrowEstimator:
         the shown fault with the lowest objective, so what the fit would refine changes no decision. The joint
         fit runs only when a fault is shown (a throw that shows none needs no joint fit); without `decide`, every
         fit runs to its end and the joint one always. On poly's faulty throws of benchmarks.diagnosis's cases (seed
-        7), the modes that did not end best took 18.5 ms a throw instead of 27.1; those ending three times the
-        best's objective or more, 1.4 Jacobians each instead of 2.4. A shown fault's evidence is what the decision
+        7), the modes that did not end best took markedly less time a throw than run to their ends; those ending
+        three times the best's objective or more, fewer Jacobians each. A shown fault's evidence is what the decision
         reads; that of a mode stopped short of its minimum is understated (its estimates are where it stopped).
 
         `warm` holds each hypothesis's values fitted to the switch's previous throw in the same direction. A
@@ -657,17 +657,17 @@ class ThrowEstimator:
         the nominal values', a fault mode where it beats the mode's grid points, and the joint fit where it
         beats the best mode's fit and that fit joined with each other mode's own parameters as that mode fitted
         them (a small obstacle's position, say, which the joint fit cannot find from no obstacle: started at the
-        best mode alone, on population switches with a missing bearing, it crept for 12 iterations on average to
-        a worse end than it reached in 4 from the joined start). `settled_mse` is the nominal fit's MSE on that
+        best mode alone, on population switches with a missing bearing, it crept for several times as many
+        iterations to a worse end than it reached from the joined start). `settled_mse` is the nominal fit's MSE on that
         throw when it was healthy: a throw whose nominal fit is within SETTLED of it is settled (grid_starts).
         `slopes` are those fits' Jacobians where they ended: on a settled throw, a fault mode's fit that starts there
         borrows them (fit). Not on a throw that is not settled: there the fault modes' fits to a switch whose fault
         persisted, borrowing, ended where the fault's size combined over its throws was further from the truth
-        (benchmarks.fleet, poly, seed 1: median relative error .0094 instead of .0072, the truth within two standard
-        deviations in 98.8 % of the throws instead of all). Nor the nominal fit, which every test of a fault and the
+        (benchmarks.fleet, poly, seed 1: a larger median relative error, and the truth not always within two standard
+        deviations). Nor the nominal fit, which every test of a fault and the
         switch's commissioned levels read: borrowed in commissioning, its fits moved within the solver's tolerance,
-        and with them the bolts' estimates of later faulty throws by up to 0.7 mm (benchmarks.diagnosis, seed 7:
-        three of ten left bolts further from the truth, one closer).
+        and with them the bolts' estimates of later faulty throws (benchmarks.diagnosis, seed 7: more left bolts
+        further from the truth than closer).
 
         Every hypothesis of the throw shares one prior weight, so their objectives compare: the larger of
         the throw's noise (noise_weight) and `model_weight`, the residual variance over the effective number
@@ -692,7 +692,8 @@ class ThrowEstimator:
         # nominal's place the fault's parameter and the nuisance trade along a valley too flat to leave.
         # The present faults (the nominal spec's `initial`: their latest estimates) start the fault modes where they
         # were, not where the nominal fit took them: a throw that shows a new fault bends them in the fit without it
-        # (drive friction appearing took an 87 mm bolt to -10 mm, and the drive-friction fit started there stayed).
+        # (drive friction appearing took a long bolt to a negative offset, and the drive-friction fit started there
+        # stayed).
         nominal = specs["nominal"].within_priors({**out["nominal"].values, **specs["nominal"].initial}, START_SIGMAS)
         modes = [mode for mode in specs if mode not in ("nominal", "joint") and not mode.startswith(WITHOUT)]
         settled = settled_mse is not None and out["nominal"].mse <= (1.0 + SETTLED) * settled_mse

@@ -18,9 +18,9 @@ MAX_ATTEMPTS = 12  # damped steps tried per iteration before giving up
 SMALLEST_STEP = 1e-6  # in scaled units: a step below this changes nothing a decision can see
 # Broyden's update predicts less of the decrease left than the exact Jacobian does: after a Gauss-Newton step the
 # residual is nearly orthogonal to the old Jacobian's columns, and the update corrects them along the step only
-# (on the diagnosis's fits the exact prediction was a median 1.8 to 2.2 times the update's). So the update alone
-# ends a fit only when it predicts a tenth of the tolerance: over 1200 such checks of poly and nn fits, the exact
-# Jacobian would then have gone on in 15 (mostly for a decrease below 1e-3 of r'r); at the tolerance itself, in 105.
+# (on the diagnosis's fits the exact prediction was typically well above the update's). So the update alone ends a
+# fit only when it predicts a tenth of the tolerance: on poly and nn fits the exact Jacobian would then seldom have
+# gone on (and mostly for a decrease too small to matter); at the tolerance itself, many times as often.
 BROYDEN_MARGIN = 10.0
 GAUSS_NEWTON = 1e-9  # the damping of the step whose decrease `hopeless` judges (_promised): none to speak of
 
@@ -58,7 +58,7 @@ class SameOnEveryProcessor(Algebra):
     """The same linear algebra in numbers that do not depend on the processor or the threads: sums in numpy's own
     fixed order (a pairwise sum along a row, rows added one after the other), a'a from BLAS products that are exact
     whatever their order, and a Cholesky factorisation written out. For training, whose fits run for many iterations
-    and whose weights should be the same on every machine; slower than BLAS by a few milliseconds a solve."""
+    and whose weights should be the same on every machine; slower than BLAS."""
 
     def dot(self, x: np.ndarray, y: np.ndarray) -> float:
         return float(np.sum(x * y))
@@ -195,7 +195,7 @@ def levenberg_marquardt(linearise: Linearise, z0: np.ndarray, *, cost: Callable[
             # decrease: the linear model's r'r, which is what a step this small would achieve. A step the bounds
             # cut short is not that step: cut along some parameters and whole along others, it may promise an
             # increase where a shorter one promises a decrease (a large obstacle's fit, its supply's step cut at
-            # its bound, stopped at its grid point 34 % low), so it is damped and tried again.
+            # its bound, stopped at its grid point far below the truth), so it is damped and tried again.
             if predicted < tolerance * value:
                 if not cut:
                     break

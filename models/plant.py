@@ -35,30 +35,28 @@ PLANT_VARIABLES: tuple[str, ...] = tuple(PLANT_PARAMETERS)  # a switch's own par
 # CVODES's BDF up to order 4, not 5. The rails' bending modes are lightly damped: their eigenvalues lie close to the
 # imaginary axis, where BDF of order 5 is not stable (its stability wedge is 51.8 degrees wide against order 4's 73.4),
 # so at order 5 CVODES keeps failing its error test and cutting the step. Up to order 4, over two throws of each of the
-# paper's five scenarios, CVODES takes 11 % fewer steps (right-to-left throws 21 % fewer, left-to-right as many) and
-# 10 % less time (a whole simulated throw 5 to 14 % in paired runs), and a throw's error against a run at 1000 times
-# tighter tolerances stays of the same size (RMS over a throw of those scenarios: current 1e-5 to 2.6e-4 A against
-# 1.4e-5 to 1.7e-4 A, velocity 3e-5 to 1.1e-3 rad/s against 3e-5 to 5.9e-4), both far inside what the recordings'
-# check allows for the solver (tests/integration/test_recordings.py). Order 3 loses accuracy.
+# paper's five scenarios, CVODES takes fewer steps (right-to-left throws markedly fewer, left-to-right as many) and
+# less time (a whole simulated throw too, in paired runs), and a throw's error against a run at 1000 times tighter
+# tolerances stays of the same size (RMS current and velocity over a throw of those scenarios), both far inside what
+# the recordings' check allows for the solver (tests/integration/test_recordings.py). Order 3 loses accuracy.
 BDF_MAX_ORDER = 4
-# Where a throw's time goes (a nominal left-to-right throw, perf, this machine): about 2200 steps, about 35 us each.
-# Equations 9 us an evaluation (1.2 a step), their Jacobian 29 us (one per 7 or 8 steps), the sparse factorisations
-# and solves about a third of the whole, CVODES's vector operations a tenth; CasADi times every evaluation with the
-# process clock, a system call here, some 5 %. The steps are where the blades leave and meet the stock rails and the
-# lock engages (0 to 2 s, 5 to 7 s of a throw). Tried and left out, measured over ten scenarios (the paper's faults,
-# population switches), each pair of throws run alternately: CasADi's sparse QR for csparse (7 % faster on the nominal
-# pair, only because rounding moved its steps from 4385 to 3494; over the ten, 1.315 s against 1.320 s and 1.398 s
-# against 1.374 s in two runs), tanh written with exp (4 % faster, the current moved by up to 5e-4 A).
+# Where a throw's time goes (a nominal left-to-right throw, perf): thousands of short steps. Most of it goes to the
+# equations, evaluated about once a step, and to the sparse factorisations and solves; less to the equations'
+# Jacobian, dearer but taken only every few steps, and to CVODES's vector operations; CasADi times every evaluation
+# with the process clock, a system call here, a small share. The steps are where the blades leave and meet the stock
+# rails and the lock engages (early and late in a throw). Tried and left out, over ten scenarios (the paper's faults,
+# population switches), each pair of throws run alternately: CasADi's sparse QR for csparse (faster on the nominal
+# pair only because rounding moved its steps; over the ten, no faster), tanh written with exp (a little faster, but
+# it moved the current).
 # CasADi stops CVODES wherever the control changes from one sample to the next (it takes the control as piecewise
 # constant): a step cut short, and more often a fresh Jacobian and factorisation. The reference reaches the plant as the
 # line of each piece of its profile (Reference.linear_pieces), the same two numbers over a piece to the last bit; as
-# chords through the samples, which differ in their last bits, every sample of the ramps (20 each) was a stop. Over 168
-# population switches (five runs; faults as benchmarks.diagnosis draws them; two throws each, the two ways alternating
-# in one process): 0.5 to 3 % fewer steps, 14 to 15 % fewer Jacobians (two runs), 4.5 to 10 % less time (median 8 %). A
-# pair of throws' steps move by up to a fifth either way with any rounding (0.76 to 1.31 of each other here), so one
-# pair says little: the nominal pair of benchmarks.plant went from 4385 steps, a slow draw, to 3242; a typical pair
-# takes about 3450. The error against a run at 1e-10 tolerances is the same (ten scenarios: RMS current over a throw at
-# most 8.8e-5 A against 9.2e-5, velocity 1.2e-4 rad/s against 1.6e-4).
+# chords through the samples, which differ in their last bits, every sample of the ramps (20 each) was a stop. Over
+# population switches (faults as benchmarks.diagnosis draws them; two throws each, the two ways alternating in one
+# process): a few fewer steps, markedly fewer Jacobians, less time. A pair of throws' steps move a good deal either
+# way with any rounding, so one pair says little: the nominal pair of benchmarks.plant went from a slow draw to a
+# fast one. The error against a run at 1e-10 tolerances is the same (ten scenarios: RMS current and velocity over a
+# throw).
 
 SIGNALS = ("current_a", "angle_rad", "velocity_rad_s", "rail_position_m", "rail_velocity_m_s",
            "rail_acceleration_m_s2", "drive_force_n", "rod_position_m")
@@ -192,7 +190,7 @@ class Plant:
     @lru_cache(maxsize=16)
     def _evaluators(self, dt_s: float, steps: int) -> tuple[InPlace, InPlace]:
         """The integrator over that grid and the outputs at its samples, on numpy buffers of their own
-        (models/buffers.py): the states to and from DMs took 15 to 20 ms of a throw's 90."""
+        (models/buffers.py): the states to and from DMs took a large share of a throw's time."""
         outputs = self._outputs.map("outputs_at_samples", "serial", steps, [1, 2], [])  # one fault and plant vector
         return InPlace(self._integrator(dt_s, steps)), InPlace(outputs)
 

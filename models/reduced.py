@@ -67,7 +67,7 @@ class ReducedParams:
     bolt_stiffness_n_m: float = 2.5e5  # along the rod (1e6 N/m at the blades through the lever)
     lock_stiffness_n_m: float = 1.0e6
     # The hook's release rate: None keeps the plant's. It sets how soon the blades follow the driving
-    # bolt, so a slower one reads as a bolt offset (50/s put 0.05 m bolts 1.7 mm long).
+    # bolt, so a slower one reads as a bolt offset (a bolt then fits longer than it is).
     latch_rate_1_s: float | None = None
     contact_width_m: float = 2e-4
     voltage_corner_v: float = 1.0
@@ -211,8 +211,8 @@ class StandIns:
 
 def with_weights(step: ca.Function, weights: np.ndarray) -> ca.Function:
     """`step` (an SX Function whose last input is the rail's weights) with the weights fixed at `weights`: every
-    product and sum of weights alone is done once, here, instead of at each step (causal's chunk 5 % faster,
-    its Jacobian chunks 6 %), and no weights are copied per call."""
+    product and sum of weights alone is done once, here, instead of at each step (causal's chunk and its Jacobian
+    chunks a little faster), and no weights are copied per call."""
     args = [ca.SX.sym(step.name_in(i), step.sparsity_in(i)) for i in range(step.n_in() - 1)]
     return ca.Function(step.name(), args, step.call([*args, ca.DM(weights)]), step.name_in()[:-1], step.name_out())
 
@@ -415,10 +415,10 @@ class ReducedSwitch:
         "w": training).
 
         The sensitivities ride through each step in SX as K extra 8-vectors of state: the same numbers
-        as CasADi's forward derivative of a rollout, at a third to a fifth of its cost, which recomputes
+        as CasADi's forward derivative of a rollout, at a small part of its cost, which recomputes
         each step's nominal values inside its derivative. Over the parameters, a learned rail's features enter
         through their stand-ins (StandIns): its networks carry two directions instead of K (causal's Jacobian
-        chunk 0.46 -> 0.33 ms at K = 5, 0.71 -> 0.41 ms at 9). Over the weights, the derivatives run through
+        chunks markedly faster, the more so the larger K). Over the weights, the derivatives run through
         the networks' insides, so the step is differentiated as written. `kernels`: as for `fixed_step` (over the
         parameters only)."""
         n = len(STATES)

@@ -192,7 +192,7 @@ def acausal_residuals(representation: Representation, reduced: ReducedParams, da
                       threads: int = 1) -> Residuals:
     """The scaled shooting errors over all segments (plus weight decay for nn) as functions of z, the segments
     shared among `threads` threads. Their Jacobian rides through each segment with its states
-    (shooting_sensitivity_step): the numbers of CasADi's AD of the rollout, nn's linearisation 1.5 -> 0.15 s
+    (shooting_sensitivity_step): the numbers of CasADi's AD of the rollout, nn's linearisation many times faster
     (one series; read from numpy buffers, InPlace)."""
     starts, forces, measured = shooting_segments(data)
     segments, size = starts.shape[1], representation.size
@@ -238,12 +238,12 @@ REGRESSION_CHUNK = 1024  # samples of the causal regression per call of its comp
 RIDGE = 1e-2  # weight decay of the causal regression
 # How F depends on a is the regression's to learn, from the rail's own force and acceleration, under a prior of
 # its own on the acceleration input's weights; the fine-tuning inside the switch model then holds them
-# (`train`). Fine-tuned freely, they gave the causal rail an inertia from -6000 to +3000 kg across its
+# (`train`). Fine-tuned freely, they gave the causal rail an inertia far negative and far positive across its
 # travel and speeds (floored at 75 kg): at the diagnosis's 10 ms step the current's peak as a bolt set the blades
-# moving jumped by a third from one quarter millimetre of the bolt to the next, and a bolt's MSE with it
+# moving jumped from one quarter millimetre of the bolt to the next, and a bolt's MSE with it
 # (models/validation.py contact_peaks). Of priors 0.01, 1, 10, 100 and 1000 (all held), 1 follows the 25
-# validation series best: position RMSE 2.27 mm, worst 3.70 mm (free: 2.66 and 4.74 mm; 0.01: above 5 mm on the
-# hardest three; 1000, the old prior: 4.55 to 5.27 mm there), its inertia 75 to 480 kg.
+# validation series best, in mean and worst position RMSE (better than free, than 0.01 on the hardest three and
+# than 1000, the old prior, there), its inertia positive and moderate throughout.
 ACCELERATION_INPUT_RIDGE = 1.0
 
 
@@ -266,8 +266,8 @@ def causal_regression(representation: CausalRail, reduced: ReducedParams, data: 
     row = [ca.Function("causal_row", [x, v, a, f, z], [r, ca.jacobian(r, z)]),
            ca.Function("causal_row_alone", [x, v, a, f, z], [r])]  # one sample: no data inside, so they compile
     # REGRESSION_CHUNK samples a call, the loop inside the machine code, the weights held (not copied to every
-    # sample) and the numbers read from numpy buffers (InPlace), not converted from DMs: the rows with their
-    # gradients 0.63 -> 0.022 s, alone 0.21 -> 0.009 s (14 857 samples), the same numbers bit for bit. The last
+    # sample) and the numbers read from numpy buffers (InPlace), not converted from DMs: the rows, with their
+    # gradients and alone, many times faster, the same numbers bit for bit. The last
     # chunk repeats the last sample, and what it adds is dropped.
     samples = columns.shape[1]
     chunks = -(-samples // REGRESSION_CHUNK)
@@ -421,13 +421,13 @@ def random_switch_target(plant: Plant, reduced, seed: int, duration_s: float = 3
 
 
 # A stage runs until a step lowers its cost by less than this fraction. At 1e-6 a stage stopped on plateaus that its
-# later steps left (poly 4e-7 a step, then 1e-3), where the arithmetic's last digits had led it (under other BLAS
-# kernels, poly's weights 100 % apart and nn's cost from 11 655 to 17 670); below 1e-9 poly only crawls along a
-# direction its cost does not see (1e-10 to 1e-12 a step, 20 steps more).
+# later steps left (poly's decrease a step fell below it, then rose far above), where the arithmetic's last digits had
+# led it (under other BLAS kernels, poly's weights wholly apart and nn's cost far higher); below 1e-9 poly only crawls
+# along a direction its cost does not see (far smaller decreases a step, for many steps more).
 FIT_TOLERANCE = 1e-9
 # A stage's iterations at most (the causal fine-tuning's a quarter): nn's fit ends before. The causal regression
-# does not (hundreds more lower its cost by a few percent); run longer, 60 and 15, the fine-tuning fitted its targets
-# closer and the 25 validation series of benchmarks.reduced worse (6.4 mm mean, worst 11.6, against 3.0 and 5.2).
+# does not (many more still lower its cost a little); run longer, 60 and 15, the fine-tuning fitted its targets
+# closer and the 25 validation series of benchmarks.reduced markedly worse, in mean and worst position RMSE.
 STAGE_ITERATIONS = 40
 
 
@@ -437,7 +437,7 @@ STAGE_ITERATIONS = 40
 # bit for bit there (EXACT machine code, the plant's beam solved in scalar recurrences, SAME_ON_EVERY_PROCESSOR), and
 # so are the weights under every OpenBLAS kernel and thread count tried; the bound leaves room for a rounding
 # elsewhere that a fit run to its end damps (with BLAS's reordered sums in its solver, poly's on one series moved
-# 4e-10). The causal rail's fine-tuning, which ends at its budget, would follow such a rounding further.
+# within it). The causal rail's fine-tuning, which ends at its budget, would follow such a rounding further.
 REPRODUCIBLE_WEIGHTS = 1e-9
 
 

@@ -150,8 +150,9 @@ def plant_contact_peaks(plant: Plant, rate_hz: float) -> np.ndarray:
 
 
 def roughness(peaks: np.ndarray) -> float:
-    """How far the peaks stray from the straight line through them, as a share of their mean: the plant's 0.001 %;
-    a step that does not resolve the contact swings them by 10 to 40 % (and the MSE along a bolt by as much)."""
+    """How far the peaks stray from the straight line through them, as a share of their mean: the plant's next to
+    none (docs/results.md); a step that does not resolve the contact swings them widely (and the MSE along a bolt by
+    as much)."""
     bolts = np.asarray(CONTACT_BOLTS_M)
     line = np.polyval(np.polyfit(bolts, peaks, 1), bolts)
     return float(np.max(np.abs(peaks - line)) / np.mean(peaks))

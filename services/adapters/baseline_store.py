@@ -18,7 +18,7 @@ from railswitch.services.adapters.user_directories import user_directory
 
 log = logging.getLogger("railswitch.baselines")
 # pydantic's JSON encoder, non-finite numbers as json.dumps writes them (NaN, Infinity: json.loads reads them back);
-# json.dumps took 0.39 ms a switch's state, written after every throw, this 0.06
+# several times faster than json.dumps at a switch's state, written after every throw
 _STATE_JSON = TypeAdapter(dict, config=ConfigDict(ser_json_inf_nan="constants"))
 
 

@@ -81,21 +81,21 @@ class MachineCode:
 
 # How the C compiler optimises the models. Beyond -O2:
 # - a division by a value used more than once becomes one reciprocal and products (-freciprocal-math: the
-#   reduced models' steps solve small linear systems and the networks divide by square roots, a tenth to a fifth
-#   of a throw's diagnosis), and a square root need not set errno;
+#   reduced models' steps solve small linear systems and the networks divide by square roots, a good part of a
+#   throw's diagnosis), and a square root need not set errno;
 # - the machine's own instructions (-march=native: fused multiply-adds, wide registers) and sums and products
 #   taken in any order (-fassociative-math, with no traps and no signed zeros, which it needs), so the compiler
-#   can pair the K sensitivity directions' identical operations: the Jacobian chunks 17 % (poly) to 26 % (causal)
-#   faster, a rollout 5 %.
+#   can pair the K sensitivity directions' identical operations: the Jacobian chunks markedly faster (causal's
+#   most), a rollout a little.
 # All move results by a rounding or so per operation, far inside the solvers' tolerances; infinities and NaNs
 # keep their meaning (no -ffinite-math-only), which the estimator relies on to reject a diverged rollout. The
 # code is this processor's, so the cache's key names the processor (_machine).
 OPTIMISATION = ("-O2", "-fno-math-errno", "-freciprocal-math", "-march=native", "-fno-trapping-math", "-fno-signed-zeros",
                 "-fassociative-math")
 # Training's (its plant data and its own functions): IEEE arithmetic as written. The causal rail's fits run for
-# hundreds of iterations from a seeded start and end in another optimum when a rounding per operation moves (the
-# plant's rail 3e-8 m): trained under OPTIMISATION it followed the plant 8.8 mm RMS over the 25 validation series of
-# benchmarks.reduced (one series 40 mm) instead of 2.9 mm (worst 4.9).
+# hundreds of iterations from a seeded start and end in another optimum when a rounding per operation moves (as it
+# moves the plant's rail: docs/results.md): trained under OPTIMISATION it followed the plant far worse over the 25
+# validation series of benchmarks.reduced, on average and at worst, than trained under EXACT.
 EXACT = ("-O2",)
 SHARED = ("-shared", "-fPIC")  # beside the optimisation, the flags of a cached shared library (all part of its key)
 
@@ -196,6 +196,6 @@ def _compile(compiler: str, flags: tuple[str, ...], source: str, library: Path) 
 
 def compiled_plant(params: PlantParams = PlantParams(), *, exact: bool = False, **options) -> Plant:
     """The high-fidelity plant with its equations and their Jacobian in machine code (cached per machine):
-    the same numbers as Plant(params), about 1.4 times faster; Plant(params) without a C compiler. `exact`: the
+    the same numbers as Plant(params), faster (docs/results.md); Plant(params) without a C compiler. `exact`: the
     machine code of MachineCode(exact=True) (training's data)."""
     return Plant(params, compiler=MachineCode(exact=exact), **options)

@@ -19,15 +19,15 @@ Three steps, each on plant throws the diagnosis never sees otherwise:
    within two standard deviations: an absolute part (a) and, for frictions, a relative one (r), the
    pair with the least mean a + r|value| among those that cover 97.5 %. A force the model reads through the
    motor current (the frictions, the missing bearing) also reads as its value times the nominal torque constant
-   over the unit's own (2 % unit to unit). Forty switches sample that spread poorly (the calibration's drew 1.8 %,
-   and one held-out drive fault read 4 % low on a unit 3 % strong), so each case's estimate is put back on its own
+   over the unit's own (2 % unit to unit). Forty switches sample that spread poorly (the calibration's drew less
+   than it, and a held-out drive fault read low on a strong unit), so each case's estimate is put back on its own
    unit's constant before the envelopes are measured, and the population's spread is added as its own common part
    (ErrorModel.unit_relative).
 4. Held-out healthy switches of the population, noise 1 %, diagnosed with the calibration just made from their
    first throw on (commissioning included) through a change of weather: the false alarms per 1000 throws. A model
    that fits its training series well can still misfit healthy switches in a way that reads as a fault (an nn
-   retrained with today's trainer validated better than the shipped one and then raised 29 to 40 false alarms per
-   1000 healthy fleet throws), which no validation of positions shows. The check says so before the model is used.
+   retrained with today's trainer validated better than the shipped one and then raised many false alarms on
+   healthy fleet throws), which no validation of positions shows. The check says so before the model is used.
 """
 from __future__ import annotations
 
@@ -77,13 +77,13 @@ THROUGH_CURRENT = ("bearing_friction", "obstacle_friction", "drive_friction_nm")
 TORQUE_CONSTANT = "motor.torque_constant_nm_a"
 # Step 4: held-out healthy switches, each diagnosed over CHECK_THROWS throws (commissioning included; the weather
 # changes halfway). A model's misfit that reads as a fault is a property of some switches, not of every throw: the
-# retrained nn above alarmed on 2 of 40 such switches, 11 throws each (27.5 per 1000 throws; the fleet's 28.8), and
-# ten switches (200 throws) drew none of them. Forty miss a misfit that one switch in twenty shows one time in eight.
+# retrained nn above alarmed on few of forty such switches, but on many throws of each (about as often as on the
+# fleet), and ten switches drew none of them. Forty miss a misfit that one switch in twenty shows one time in eight.
 CHECK_SWITCHES = 40
 CHECK_THROWS = 20
 CHECK_SEED = FIRST_SEED + 3000  # apart from the switches of steps 2 and 3
 # Step 4 passes at up to this many false alarms per 1000 healthy throws (8 in its 800). The shipped models give
-# none on benchmarks.fleet.
+# none on benchmarks.fleet (docs/results.md).
 FALSE_ALARM_LIMIT = 10.0
 Progress = Callable[[str], None]
 
