@@ -68,13 +68,16 @@ def test_train_command_writes_loadable_weights(tmp_path):
     assert np.all(np.isfinite(weights)) and document["training"]["iterations"] == 2
 
 
-def test_train_command_rejects_a_missing_output_directory_in_one_line(tmp_path):
+def test_train_command_rejects_an_output_that_is_a_file_in_one_line_before_training(tmp_path):
     import subprocess
     import sys
 
+    out = tmp_path / "models"
+    out.write_text("not a directory")
     result = subprocess.run([sys.executable, "-m", "railswitch", "train", "--model", "poly",
-                             "--out", str(tmp_path / "nope")], capture_output=True, text=True, timeout=60)
-    assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1
+                             "--out", str(out)], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1, result.stderr
+    assert "--out" in result.stderr and out.read_text() == "not a directory"
 
 
 def test_compiled_rollout_matches_the_interpreted_one_and_leaves_no_files(tmp_path, monkeypatch):
