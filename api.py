@@ -19,8 +19,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from railswitch.models.plant import Plant
-from railswitch.models.switch import SwitchSimulation
+from railswitch.models.plant.high_fidelity import Plant
+from railswitch.models.plant.simulation import SwitchSimulation
 from railswitch.schemas import CHANNEL_MODELS, HISTORY_KINDS, Message, decode
 from railswitch.services.adapters.history_store import open_history
 from railswitch.services.adapters.csv_throws import load_throws, logged_record

@@ -1,6 +1,6 @@
 """Switches as they age: several faults at once, standing conditions, slow growth and repairs (issue 38).
 
-Switches drawn from the population (models/population.py), noise 1 %, diagnosed throw by throw from their first
+Switches drawn from the population (models/plant/population.py), noise 1 %, diagnosed throw by throw from their first
 throw (commissioning included) while their weather wanders (the winding's temperature over a day, the chairs
 drying and wetting by up to a fifth). Every magnitude is drawn from a range, never a round number. Per
 representation:
@@ -11,7 +11,7 @@ representation:
   was named before the second came and is gone from them at the end; `extra`: sequences that end with a fault
   present that is not.
 - ramps: bearing friction growing 250 to 350 N·s/m a throw, drive friction and a bolt creeping so that they reach
-  their limits (models/health.py DEFAULT_LIMITS) in 18 to 30 throws, from a random throw after commissioning on.
+  their limits (models/health/prognosis.py DEFAULT_LIMITS) in 18 to 30 throws, from a random throw after commissioning on.
   `held_at_fraction_of_limit`: the true value over the limit when the mode entered `faults` for good;
   `alarm_throws_before_limit`: the throw at which the truth reaches its limit less the first throw whose health
   state is `alarm` (the 50th percentile over the ramps, and every ramp's).
@@ -35,10 +35,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from benchmarks.common import emit, parser
-from railswitch.models.health import DEFAULT_LIMITS
-from railswitch.models.population import draw_switch
-from railswitch.models.switch import SwitchSimulation
-from railswitch.models.switch_diagnosis import COMMISSIONING_THROWS
+from railswitch.models.health.prognosis import DEFAULT_LIMITS
+from railswitch.models.plant.population import draw_switch
+from railswitch.models.plant.simulation import SwitchSimulation
+from railswitch.models.diagnosis.switch_diagnoser import COMMISSIONING_THROWS
 from railswitch.schemas import RAIL_MODELS
 from railswitch.schemas.faults import FAULT_MODES
 from railswitch.services.adapters.compiled import compiled_plant

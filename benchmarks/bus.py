@@ -72,7 +72,7 @@ from railswitch.services.adapters.processes import (
     wait_for,
     wait_ready,
 )
-from railswitch.models.switch_diagnosis import COMMISSIONING_THROWS
+from railswitch.models.diagnosis.switch_diagnoser import COMMISSIONING_THROWS
 from railswitch.services.commands.simulate import simulate_to_mcap
 
 RATE_HZ = 50.0

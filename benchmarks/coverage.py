@@ -14,8 +14,8 @@ from __future__ import annotations
 import numpy as np
 
 from benchmarks.common import emit, parser, pin_to_one_core
-from railswitch.models.population import draw_switch
-from railswitch.models.switch import SwitchSimulation
+from railswitch.models.plant.population import draw_switch
+from railswitch.models.plant.simulation import SwitchSimulation
 from railswitch.schemas import RAIL_MODELS
 from railswitch.services.adapters.compiled import compiled_plant
 from railswitch.services.core.calibration import FAULTY_THROWS, NOISE, changed_weather, fault_cases

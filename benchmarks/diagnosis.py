@@ -32,14 +32,14 @@ import numpy as np
 
 from benchmarks.common import emit, parser, pin_to_one_core
 from benchmarks.paper_de import PaperEstimator, paper_twin
-from railswitch.models.estimation import WITHOUT
-from railswitch.models.isolation import presence
-from railswitch.models.switch_diagnosis import ThrowVerdict
-from railswitch.models.plant import Plant
-from railswitch.models.switch import SwitchSimulation
+from railswitch.models.diagnosis.estimation import WITHOUT
+from railswitch.models.diagnosis.isolation import presence
+from railswitch.models.diagnosis.switch_diagnoser import ThrowVerdict
+from railswitch.models.plant.high_fidelity import Plant
+from railswitch.models.plant.simulation import SwitchSimulation
 from railswitch.schemas import RAIL_MODELS, Diagnosis
 from railswitch.services.adapters.recordings import load_recording
-from railswitch.models.switch_diagnosis import COMMISSIONING_THROWS
+from railswitch.models.diagnosis.switch_diagnoser import COMMISSIONING_THROWS
 from railswitch.services.adapters.compiled import compiled_plant
 from railswitch.services.core.fleet_diagnoser import Diagnoser, diagnose_messages, throw_input
 from railswitch.services.core.throw_cutter import CutThrow

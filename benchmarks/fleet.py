@@ -1,6 +1,6 @@
 """A fleet of switches that are not the model's twin (issue 14).
 
-Switches drawn from the population (models/population.py), noise 1 %, each commissioned on its
+Switches drawn from the population (models/plant/population.py), noise 1 %, each commissioned on its
 own first healthy throws, then healthy for the rest of its run or carrying one fault from a
 random throw on (every mode, magnitudes across their ranges); some go through a cold night
 (winding resistance down 10 %, supply sagging 7 %) or chairs drying out to twice their friction
@@ -31,9 +31,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from benchmarks.common import emit, parser, pin_to_one_core
-from railswitch.models.estimation import DRIVING_BOLT
-from railswitch.models.population import draw_switch
-from railswitch.models.switch import SwitchSimulation
+from railswitch.models.diagnosis.estimation import DRIVING_BOLT
+from railswitch.models.plant.population import draw_switch
+from railswitch.models.plant.simulation import SwitchSimulation
 from railswitch.schemas import RAIL_MODELS, Diagnosis
 from railswitch.services.adapters.compiled import compiled_plant
 from railswitch.services.core.calibration import fault_cases

@@ -32,10 +32,10 @@ import tracemalloc
 from pathlib import Path
 
 from benchmarks.common import emit, parser, pin_to_one_core
-from railswitch.models import switch_diagnosis
-from railswitch.models.population import draw_switch
-from railswitch.models.switch import SwitchSimulation
-from railswitch.models.switch_diagnosis import COMMISSIONING_THROWS
+from railswitch.models.diagnosis import switch_diagnoser
+from railswitch.models.plant.population import draw_switch
+from railswitch.models.plant.simulation import SwitchSimulation
+from railswitch.models.diagnosis.switch_diagnoser import COMMISSIONING_THROWS
 from railswitch.schemas import RAIL_MODELS, SwitchState, decode, encode
 from railswitch.services.adapters.compiled import compiled_plant
 from railswitch.services.core.fleet_diagnoser import Diagnoser
@@ -144,7 +144,7 @@ def main() -> None:
     tracemalloc.stop()
 
     kb = 1024.0
-    tracked = switch_diagnosis.TRACKED_THROWS
+    tracked = switch_diagnoser.TRACKED_THROWS
     faulty = FAULTY_SHARE * SWITCHES * tracked * per_faulty_throw
     gib = (process * 2**20 + SWITCHES * (per_switch + per_state) + faulty) / 2**30
     lean_gib = (process * 2**20 + SWITCHES * (lean_per_switch + per_state) + faulty) / 2**30

@@ -18,8 +18,8 @@ import copy
 import numpy as np
 from scipy.optimize import differential_evolution
 
-from railswitch.models.estimation import Estimate, HypothesisSpec, Prior, ThrowEstimator
-from railswitch.models.reduced import PARAMETERS
+from railswitch.models.diagnosis.estimation import Estimate, HypothesisSpec, Prior, ThrowEstimator
+from railswitch.models.reduced.hybrid import PARAMETERS
 
 SETTINGS = {"popsize": 15, "tol": 0.01, "mutation": (0.5, 1.0), "recombination": 0.7, "init": "latinhypercube",
             "maxiter": 1000, "polish": False, "updating": "deferred", "vectorized": True}

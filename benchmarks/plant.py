@@ -28,11 +28,11 @@ from scipy.integrate import solve_ivp
 
 from benchmarks.common import emit, parser, pin_to_one_core
 from benchmarks.diagnosis import draw_cases
-from railswitch.models.faults import fault_vector
-from railswitch.models.plant import Plant
-from railswitch.models.population import draw_switch
-from railswitch.models.reference import THROW_DURATION_S, throw_reference
-from railswitch.models.switch import SwitchSimulation
+from railswitch.models.plant.faults import fault_vector
+from railswitch.models.plant.high_fidelity import Plant
+from railswitch.models.plant.population import draw_switch
+from railswitch.models.plant.reference import THROW_DURATION_S, throw_reference
+from railswitch.models.plant.simulation import SwitchSimulation
 from railswitch.services.adapters.compiled import compiled_plant
 from railswitch.services.adapters.recordings import RecordingReader
 from railswitch.services.core.recording_check import SIGNALS, rms_bound, rms_differences

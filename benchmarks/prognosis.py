@@ -1,8 +1,8 @@
 """Health over time: slowly degrading switches, their trends and throws to the limit (issue 15).
 
-Switches drawn from the population (models/population.py), noise 1 %, each commissioned on its own
+Switches drawn from the population (models/plant/population.py), noise 1 %, each commissioned on its own
 first healthy throws, then healthy for a while. A few stay healthy to the end (controls); the others
-degrade gradually until past their maintenance limit (models/health.py DEFAULT_LIMITS): bearing
+degrade gradually until past their maintenance limit (models/health/prognosis.py DEFAULT_LIMITS): bearing
 friction rising linearly to 1.3 times its limit over 150 to 300 throws, a bolt loosening a few
 millimetres at a time (a step every 10 to 25 throws), or drive friction growing linearly. Every switch's
 weather wanders meanwhile: the chairs' friction drifts slowly by up to 20 % and the winding's
@@ -29,10 +29,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from benchmarks.common import emit, parser
-from railswitch.models.health import DEFAULT_LIMITS, STATES
-from railswitch.models.population import draw_switch
-from railswitch.models.switch import SwitchSimulation
-from railswitch.models.switch_diagnosis import COMMISSIONING_THROWS
+from railswitch.models.health.prognosis import DEFAULT_LIMITS, STATES
+from railswitch.models.plant.population import draw_switch
+from railswitch.models.plant.simulation import SwitchSimulation
+from railswitch.models.diagnosis.switch_diagnoser import COMMISSIONING_THROWS
 from railswitch.schemas import RAIL_MODELS
 from railswitch.services.adapters.compiled import compiled_plant
 from railswitch.services.core.fleet_diagnoser import Diagnoser

@@ -3,13 +3,13 @@
 For each representation: trains it (timed, deterministic, one thread per core, as `railswitch train`;
 `weights_difference` is how far its weights are from those the diagnosis loads, shipped or the user's, in the
 solver's order-one parameters, and `same_as_loaded_model` says whether that is within what training promises across
-machines, models/training.py REPRODUCIBLE_WEIGHTS), times the plant and
+machines, models/reduced/training.py REPRODUCIBLE_WEIGHTS), times the plant and
 the reduced switch model over the same two throws (14 s) in the same run, and
 validates on 25 random-push series of 100 s never used in training (MSE of rail
 position, velocity and force per series, written as JSON and a box plot; the
 worst series's position RMSE is printed beside the mean), and sweeps a bolt in
 quarter millimetres at the diagnosis's model rate: the current's peak as the blades
-start, against the plant's, and how far it strays from smooth (models/validation.py
+start, against the plant's, and how far it strays from smooth (models/reduced/validation.py
 contact_peaks). `--stress N` also rolls
 each reduced switch over N stress pushes of 30 s and every fault at the ends of its
 range, at 10, 25, 50 and 100 samples/s, with one step per sample and with the
@@ -30,17 +30,17 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from benchmarks.common import emit, parser, pin_to_one_core  # noqa: E402
-from railswitch.models.buffers import InPlace  # noqa: E402
-from railswitch.models.plant import Plant  # noqa: E402
-from railswitch.models.rail_models import REPRESENTATIONS  # noqa: E402
-from railswitch.models.reduced import ReducedSwitch  # noqa: E402
-from railswitch.models.reference import THROW_DURATION_S, throw_reference  # noqa: E402
-from railswitch.models.switch import SwitchSimulation  # noqa: E402
-from railswitch.models.reduced import ReducedParams  # noqa: E402
-from railswitch.models.training import (  # noqa: E402
+from railswitch.models.numerics.buffers import InPlace  # noqa: E402
+from railswitch.models.plant.high_fidelity import Plant  # noqa: E402
+from railswitch.models.reduced.rail_models import REPRESENTATIONS  # noqa: E402
+from railswitch.models.reduced.hybrid import ReducedSwitch  # noqa: E402
+from railswitch.models.plant.reference import THROW_DURATION_S, throw_reference  # noqa: E402
+from railswitch.models.plant.simulation import SwitchSimulation  # noqa: E402
+from railswitch.models.reduced.hybrid import ReducedParams  # noqa: E402
+from railswitch.models.reduced.training import (  # noqa: E402
     RATE_HZ, REPRODUCIBLE_WEIGHTS, VALIDATION_SEEDS, weights_difference)
-from railswitch.models.estimation import MODEL_RATE_HZ  # noqa: E402
-from railswitch.models.validation import (  # noqa: E402
+from railswitch.models.diagnosis.estimation import MODEL_RATE_HZ  # noqa: E402
+from railswitch.models.reduced.validation import (  # noqa: E402
     contact_peaks, divergence, plant_contact_peaks, plant_series, roughness, validate)
 from railswitch.schemas import RAIL_MODELS  # noqa: E402
 from railswitch.services.adapters import model_store  # noqa: E402
@@ -62,7 +62,7 @@ def plant_two_throws_seconds(plant: Plant, repeats: int = 3) -> float:
 
 def reduced_two_throws_seconds(reduced: ReducedSwitch, repeats: int = 30) -> float:
     """The same two throws: one rollout per throw, each from the end of the previous, evaluated on its own
-    buffers as the diagnosis evaluates it (models/buffers.py InPlace: no CasADi matrix made per call)."""
+    buffers as the diagnosis evaluates it (models/numerics/buffers.py InPlace: no CasADi matrix made per call)."""
     references = [reduced.reference_columns(throw_reference(d), SAMPLES) for d in ("left_to_right", "right_to_left")]
     rollout = InPlace(reduced.rollout(SAMPLES))
     fault = reduced.vector()

@@ -37,7 +37,7 @@ import numpy as np
 from benchmarks.common import emit, parser
 from railswitch.schemas import Diagnosis, MotorSample, ThrowEvent, decode, parse_key_expr
 from railswitch.services.adapters.zenoh_bus import BusOptions, Inbox, open_session
-from railswitch.models.switch_diagnosis import COMMISSIONING_THROWS
+from railswitch.models.diagnosis.switch_diagnoser import COMMISSIONING_THROWS
 from railswitch.services.commands.demo import INTERVAL_S, demo_scenario
 from railswitch.services.adapters.recordings import RecordingReader
 from railswitch.services.adapters.processes import ServiceProcesses, free_loopback_endpoint, wait_ready

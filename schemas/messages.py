@@ -232,7 +232,7 @@ class Commissioning(Message):
 
 
 class ThrowFeatures(Message):
-    """What a point-machine monitor trends of a throw (models/features.py says how each is computed from the samples,
+    """What a point-machine monitor trends of a throw (models/health/features.py says how each is computed from the samples,
     the same from MCAP, CSV or the bus). Currents are magnitudes; a feature the throw's samples cannot give is null."""
 
     throw_time_s: MaybeNonNegative = None  # motor start to end position
@@ -423,7 +423,7 @@ class SwitchState(Message):
     model: RailModel
     throw_index: Index  # the throw it follows
     t_ns: TimeNs  # that throw's end
-    state: dict  # opaque to the contract: models/switch_diagnosis.py SwitchDiagnoser.state()
+    state: dict  # opaque to the contract: models/diagnosis/switch_diagnoser.py SwitchDiagnoser.state()
 
 
 Severity = Literal["info", "low", "medium", "high", "critical"]

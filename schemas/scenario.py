@@ -39,7 +39,7 @@ from railswitch.schemas.faults import FAULT_PARAMETERS, check_fault_value
 from railswitch.schemas.messages import SwitchId, _check_fault_names, _check_fault_values
 from railswitch.schemas.plant import PLANT_PARAMETERS, check_plant_value, check_plant_values
 
-STROKE_S = 6.4  # the modelled machine type's stroke time (models/reference.py); its profile ends 0.6 s later
+STROKE_S = 6.4  # the modelled machine type's stroke time (models/plant/reference.py); its profile ends 0.6 s later
 
 
 def is_plant_name(name: str) -> bool:

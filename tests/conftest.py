@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from railswitch.models.plant import Plant
+from railswitch.models.plant.high_fidelity import Plant
 
 LEVELS = ("unit", "integration", "e2e")
 

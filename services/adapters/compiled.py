@@ -1,6 +1,6 @@
 """Machine code for the models' CasADi Functions: compiled once per machine and cached, or once per process.
 
-The models layer builds Functions and takes a `Compiler` (models/reduced.py) that returns equivalent
+The models layer builds Functions and takes a `Compiler` (models/reduced/hybrid.py) that returns equivalent
 ones; this is the one that compiles. The cache lives in $RAILSWITCH_CACHE, else the user's cache
 directory ($XDG_CACHE_HOME or ~/.cache, then railswitch); where that cannot be made, each process
 compiles for itself.
@@ -20,7 +20,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from railswitch.models.plant import Plant, PlantParams
+from railswitch.models.plant.high_fidelity import Plant, PlantParams
 from railswitch.services.adapters.user_directories import user_directory
 
 

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 from pydantic import ValidationError
 
-from railswitch.models.reference import DIRECTIONS, throw_reference
+from railswitch.models.plant.reference import DIRECTIONS, throw_reference
 from railswitch.schemas import ThrowRecord, key_expr
 from railswitch.services.adapters.recordings import RecordedMessage, Recording, load_recording
 

@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from railswitch.models.rail_models import REPRESENTATIONS, Representation
-from railswitch.models.reduced import BearingPort, NEUTRAL_PORT
-from railswitch.models.reference import DIRECTIONS
+from railswitch.models.reduced.rail_models import REPRESENTATIONS, Representation
+from railswitch.models.reduced.hybrid import BearingPort, NEUTRAL_PORT
+from railswitch.models.plant.reference import DIRECTIONS
 from railswitch.services.adapters.user_directories import user_directory
 
 SHIPPED_DIR = Path(str(resources.files("railswitch.models").joinpath("params")))
@@ -50,7 +50,7 @@ class StoredModel:
     weights: np.ndarray
     training: dict
     bearing_port: BearingPort
-    validation: dict  # the quick validation (models/validation.py); empty when never made
+    validation: dict  # the quick validation (models/reduced/validation.py); empty when never made
     healthy_gains: dict  # per direction and mode: what a fault mode's fit gains on healthy population throws
     error_model: dict  # {"absolute": {...}, "relative": {...}}: the model's error on each fault parameter
     model_weight: float  # healthy throws' nominal MSE over effective samples (the priors' weight)

@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from railswitch.models.reference import DIRECTIONS
+from railswitch.models.plant.reference import DIRECTIONS
 from railswitch.schemas.faults import FAULT_PARAMETERS
 from railswitch.services.commands.options import add_model_argument, fail, models_named
 from railswitch.services.core.model_maintenance import CheckFailed, calibrate_and_save, check_summary

@@ -24,8 +24,8 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from railswitch.models.estimation import DRIVING_BOLT
-from railswitch.models.switch_diagnosis import COMMISSIONING_THROWS
+from railswitch.models.diagnosis.estimation import DRIVING_BOLT
+from railswitch.models.diagnosis.switch_diagnoser import COMMISSIONING_THROWS
 from railswitch.schemas import FAULT_PARAMETERS, Diagnosis, FaultTruth, SwitchHealth
 from railswitch.services.adapters.zenoh_bus import (
     BusError,

@@ -14,8 +14,8 @@ from pathlib import Path
 
 from rich.progress import Progress
 
-from railswitch.models.plant import Plant
-from railswitch.models.switch import SwitchSimulation
+from railswitch.models.plant.high_fidelity import Plant
+from railswitch.models.plant.simulation import SwitchSimulation
 from railswitch.schemas.scenario import STROKE_S, Scenario, ScenarioError, load_scenario
 from railswitch.services.adapters.compiled import compiled_plant
 from railswitch.services.adapters.recordings import RecordingPathError, RecordingWriter, check_writable

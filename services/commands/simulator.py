@@ -14,7 +14,7 @@ import math
 import threading
 import time
 
-from railswitch.models.switch import RecordedThrow, ReplayedSwitch
+from railswitch.models.plant.simulation import RecordedThrow, ReplayedSwitch
 from railswitch.schemas import FaultCommand
 from railswitch.schemas.scenario import Scenario
 from railswitch.services.adapters.compiled import compiled_plant

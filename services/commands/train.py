@@ -5,7 +5,7 @@ import argparse
 import os
 from pathlib import Path
 
-from railswitch.models.training import STAGE_ITERATIONS
+from railswitch.models.reduced.training import STAGE_ITERATIONS
 from railswitch.services.commands.options import add_model_argument, bounded, fail, models_named
 from railswitch.services.core.model_maintenance import train_and_save
 

@@ -37,14 +37,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from railswitch.models.estimation import HypothesisSpec
-from railswitch.models.isolation import healthy_gains
-from railswitch.models.plant import Plant
-from railswitch.models.population import NOMINAL, draw_switch, spread
-from railswitch.models.reduced import NEUTRAL_PORT
-from railswitch.models.reference import DIRECTIONS
-from railswitch.models.switch import SwitchSimulation
-from railswitch.models.switch_diagnosis import (
+from railswitch.models.diagnosis.estimation import HypothesisSpec
+from railswitch.models.diagnosis.isolation import healthy_gains
+from railswitch.models.plant.high_fidelity import Plant
+from railswitch.models.plant.population import NOMINAL, draw_switch, spread
+from railswitch.models.reduced.hybrid import NEUTRAL_PORT
+from railswitch.models.plant.reference import DIRECTIONS
+from railswitch.models.plant.simulation import SwitchSimulation
+from railswitch.models.diagnosis.switch_diagnoser import (
     CLOSED_START_M,
     ErrorModel,
     SwitchDiagnoser,

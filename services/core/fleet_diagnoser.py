@@ -14,12 +14,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from railswitch.models.alarms import AlarmBook, Change, Condition
-from railswitch.models.estimation import MODEL_RATE_HZ, WITHOUT, ThrowEstimator
-from railswitch.models.reduced import BearingPort, ReducedParams, ReducedSwitch, port_pairs
-from railswitch.models.reference import Reference
-from railswitch.models.switch import SwitchSimulation
-from railswitch.models.switch_diagnosis import (
+from railswitch.models.health.alarms import AlarmBook, Change, Condition
+from railswitch.models.diagnosis.estimation import MODEL_RATE_HZ, WITHOUT, ThrowEstimator
+from railswitch.models.reduced.hybrid import BearingPort, ReducedParams, ReducedSwitch, port_pairs
+from railswitch.models.plant.reference import Reference
+from railswitch.models.plant.simulation import SwitchSimulation
+from railswitch.models.diagnosis.switch_diagnoser import (
     ErrorModel,
     Outcome,
     Population,
@@ -28,8 +28,8 @@ from railswitch.models.switch_diagnosis import (
     ThrowVerdict,
     population,
 )
-from railswitch.models.health import Health
-from railswitch.models.isolation import OTHER_DIRECTION
+from railswitch.models.health.prognosis import Health
+from railswitch.models.diagnosis.isolation import OTHER_DIRECTION
 from railswitch.schemas import (
     FAULT_PARAMETERS,
     MODE_PARAMETERS,

@@ -1,4 +1,4 @@
-"""Training, calibrating and describing the reduced rail models: the jobs around models/training.py,
+"""Training, calibrating and describing the reduced rail models: the jobs around models/reduced/training.py,
 reading and writing their documents through services/adapters/model_store.py."""
 from __future__ import annotations
 
@@ -10,10 +10,10 @@ from pathlib import Path
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-from railswitch.models.rail_models import REPRESENTATIONS, Representation
-from railswitch.models.reduced import STATES, ReducedSwitch
-from railswitch.models.training import STAGE_ITERATIONS, TRAIN_SEEDS, Trained, train
-from railswitch.models.validation import quick_validation
+from railswitch.models.reduced.rail_models import REPRESENTATIONS, Representation
+from railswitch.models.reduced.hybrid import STATES, ReducedSwitch
+from railswitch.models.reduced.training import STAGE_ITERATIONS, TRAIN_SEEDS, Trained, train
+from railswitch.models.reduced.validation import quick_validation
 from railswitch.services.adapters import model_store
 from railswitch.services.adapters.compiled import MachineCode, compiled_plant
 from railswitch.services.core.calibration import calibrate, healthy_check
@@ -50,7 +50,7 @@ def train_and_save(name: str, *, seed: int = 0, iterations: int = STAGE_ITERATIO
 
 
 def reproducible_training(representation: Representation, **options) -> Trained:
-    """models/training.py train as every machine runs it: its data's plant and its own functions in EXACT machine
+    """models/reduced/training.py train as every machine runs it: its data's plant and its own functions in EXACT machine
     code (plain IEEE arithmetic, not this processor's instructions)."""
     return train(representation, compiled_plant(exact=True), compiler=MachineCode(exact=True), **options)
 

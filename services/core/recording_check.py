@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from railswitch.models.plant import Plant
-from railswitch.models.switch import SwitchSimulation, nominal_peaks
+from railswitch.models.plant.high_fidelity import Plant
+from railswitch.models.plant.simulation import SwitchSimulation, nominal_peaks
 from railswitch.services.core.throw_cutter import CutThrow
 
 SIGNALS = ("current_a", "velocity_rad_s")

@@ -10,9 +10,9 @@ from collections.abc import Iterable, Iterator
 
 import numpy as np
 
-from railswitch.models.reference import Reference
-from railswitch.models.signals import SIGNAL_NAMES, MotorSignals
-from railswitch.models.switch import SwitchSimulation, Throw
+from railswitch.models.plant.reference import Reference
+from railswitch.models.plant.signals import SIGNAL_NAMES, MotorSignals
+from railswitch.models.plant.simulation import SwitchSimulation, Throw
 from railswitch.schemas import FaultTruth, Message, ThrowEvent, ThrowRecord, key_expr
 from railswitch.services.core.switch_messages import truth_message
 from railswitch.services.core.throw_cutter import CutThrow, ThrowCutter

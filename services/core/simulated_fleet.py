@@ -10,12 +10,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from railswitch.models.reference import Reference
-from railswitch.models.signals import MotorSignals
-from railswitch.models.switch import RecordedThrow, ReplayedSwitch, Samples, SwitchSimulation
+from railswitch.models.plant.reference import Reference
+from railswitch.models.plant.signals import MotorSignals
+from railswitch.models.plant.simulation import RecordedThrow, ReplayedSwitch, Samples, SwitchSimulation
 from railswitch.schemas import FaultCommand, Message, ThrowRecord
-from railswitch.models.plant import Plant
-from railswitch.models.population import draw_switch
+from railswitch.models.plant.high_fidelity import Plant
+from railswitch.models.plant.population import draw_switch
 from railswitch.schemas.scenario import Scenario, SwitchPlan, is_plant_name
 from railswitch.services.core.records import record_messages
 from railswitch.services.core.switch_messages import motor_messages, throw_messages, truth_message

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 
-from railswitch.models.switch import Samples, SwitchSimulation, Throw
+from railswitch.models.plant.simulation import Samples, SwitchSimulation, Throw
 from railswitch.schemas import PLANT_PARAMETERS, FaultTruth, Message, MotorSample, ThrowEvent, key_expr
 
 

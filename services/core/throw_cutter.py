@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from railswitch.models.signals import SIGNAL_NAMES, MotorSignals
+from railswitch.models.plant.signals import SIGNAL_NAMES, MotorSignals
 from railswitch.schemas import FaultTruth, Message, MotorSample, ThrowEvent
 
 

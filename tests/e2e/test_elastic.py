@@ -74,7 +74,7 @@ id = "{id}"
 throws = 3
 faults = {{ obstacle_friction = 1e5, obstacle_position = 1.1 }}
 """
-# The solver stops once an iteration lowers the cost by less than 1e-4 of itself (models/least_squares.py); the
+# The solver stops once an iteration lowers the cost by less than 1e-4 of itself (models/numerics/least_squares.py); the
 # same samples reaching the estimator give the same fit to the bit, so this only allows what the wire could add.
 REL_TOL = 1e-4
 

@@ -7,9 +7,9 @@ import re
 
 import pytest
 
-from railswitch.models.population import draw_switch
-from railswitch.models.switch import SwitchSimulation
-from railswitch.models.switch_diagnosis import COMMISSIONING_THROWS
+from railswitch.models.plant.population import draw_switch
+from railswitch.models.plant.simulation import SwitchSimulation
+from railswitch.models.diagnosis.switch_diagnoser import COMMISSIONING_THROWS
 from railswitch.services.core.switch_messages import SimulatedThrows
 
 COMMISSIONED = 2 * COMMISSIONING_THROWS
@@ -102,7 +102,7 @@ def current_only(throw):
     """A throw as a unit that logs the motor current alone sends it."""
     from dataclasses import replace
 
-    from railswitch.models.signals import MotorSignals
+    from railswitch.models.plant.signals import MotorSignals
 
     return replace(throw, signals=MotorSignals(current_a=throw.signals.current_a))
 

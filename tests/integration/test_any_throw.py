@@ -3,8 +3,8 @@ from dataclasses import replace
 
 import pytest
 
-from railswitch.models.switch import SwitchSimulation
-from railswitch.models.switch_diagnosis import COMMISSIONING_THROWS
+from railswitch.models.plant.simulation import SwitchSimulation
+from railswitch.models.diagnosis.switch_diagnoser import COMMISSIONING_THROWS
 from railswitch.services.core.switch_messages import SimulatedThrows
 
 NOISE = 0.01

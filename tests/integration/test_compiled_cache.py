@@ -5,10 +5,10 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from railswitch.models.estimation import MODEL_RATE_HZ, Measurement, ThrowEstimator
-from railswitch.models.reduced import ReducedSwitch
-from railswitch.models.reference import throw_reference
-from railswitch.models.signals import MotorSignals
+from railswitch.models.diagnosis.estimation import MODEL_RATE_HZ, Measurement, ThrowEstimator
+from railswitch.models.reduced.hybrid import ReducedSwitch
+from railswitch.models.plant.reference import throw_reference
+from railswitch.models.plant.signals import MotorSignals
 from railswitch.services.adapters import model_store
 from railswitch.services.adapters.compiled import MachineCode, jit_compiled_all
 
@@ -89,8 +89,8 @@ def test_exact_machine_code_gives_the_plants_numbers_to_the_bit(tmp_path, monkey
     """Training's data come from the plant in MachineCode(exact=True): its long fits end elsewhere when a rounding per
     operation moves (with the default flags' plant, a retrained causal rail drifted 40 mm on one validation series).
     Exact machine code gives the interpreted plant's throw to the bit; the default one does not."""
-    from railswitch.models.plant import Plant
-    from railswitch.models.switch import SwitchSimulation
+    from railswitch.models.plant.high_fidelity import Plant
+    from railswitch.models.plant.simulation import SwitchSimulation
     from railswitch.services.adapters.compiled import compiled_plant
 
     def two_throws(plant: Plant) -> tuple[np.ndarray, np.ndarray]:  # the package's tests do not import benchmarks

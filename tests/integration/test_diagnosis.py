@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from railswitch.models.estimation import Measurement
-from railswitch.models.reduced import PARAMETERS
-from railswitch.models.reference import throw_reference
-from railswitch.models.signals import MotorSignals
-from railswitch.models.switch import SwitchSimulation
+from railswitch.models.diagnosis.estimation import Measurement
+from railswitch.models.reduced.hybrid import PARAMETERS
+from railswitch.models.plant.reference import throw_reference
+from railswitch.models.plant.signals import MotorSignals
+from railswitch.models.plant.simulation import SwitchSimulation
 from railswitch.schemas import Diagnosis, MotorSample, ThrowEvent, decode
 from railswitch.schemas.faults import FAULT_PARAMETERS
 from railswitch.services.adapters.recordings import load_recording
@@ -80,7 +80,7 @@ def test_single_fault_is_identified_within_a_tenth_of_a_percent_on_reduced_model
 
 def test_once_a_fault_is_shown_the_modes_that_cannot_beat_it_stop_and_it_is_fitted_as_before(diagnoser, monkeypatch):
     """The mode whose start fits best is fitted first; once `decide` shows it, the fault modes fitted after it stop
-    where they cannot beat it (models/estimation.py HOPELESS_MARGIN): each still above it, no more Jacobians and
+    where they cannot beat it (models/diagnosis/estimation.py HOPELESS_MARGIN): each still above it, no more Jacobians and
     rollouts in all, and the shown fault fitted to the bit as when every fit runs to its end. On the twin's throw the
     rival test already stops most of them; fitted alone from the nominal fit, each stops at its first linearisation
     where it runs on without `beaten`."""
@@ -179,7 +179,7 @@ def causal_diagnoser() -> Diagnoser:
                                               ("right_to_left", {"right_bolt_offset": 0.1125})])
 def test_a_causal_bolt_between_grid_points_is_found_within_a_millimetre(causal_diagnoser, direction, truth):
     """The causal rail's bolt error surface was a sawtooth while its fine-tuning could move how its force depends
-    on the acceleration (models/training.py): without the scan around the fit (HypothesisSpec.scanned) the solver
+    on the acceleration (models/reduced/training.py): without the scan around the fit (HypothesisSpec.scanned) the solver
     stopped at a tooth's edge on these twin throws, 3.4 and 7.8 mm from the truth. Trained with that dependence
     held, the surface is smooth and the fit finds these bolts with or without the scan."""
     estimator = causal_diagnoser.estimator
@@ -314,7 +314,7 @@ def test_slopes_are_borrowed_only_at_the_point_signals_and_rate_they_were_made_f
     """Kept unscaled (in half precision, each signal's slope over its largest), the slopes come back as the Jacobian
     of the throw they were made on to half precision's rounding (2^-11 of the largest), and of a throw a sample shorter
     or longer; not at another start, for other signals or another rate, nor once they are SLOPES_AGE throws old."""
-    from railswitch.models.estimation import SLOPES_AGE, Slopes
+    from railswitch.models.diagnosis.estimation import SLOPES_AGE, Slopes
 
     estimator = diagnoser.estimator
     m = _noisy(_twin_throw(estimator, "left_to_right", {}), 1)
@@ -345,7 +345,7 @@ def test_a_throw_keeps_the_rollouts_its_fits_made_and_no_other_estimators(diagno
     """The model at a parameter vector already evaluated on the throw (a fit that starts where its candidate was
     judged, the decided fit's outputs) is not rolled out again; kept read only, and only for the estimator that made
     it (another one, here the same model uncompiled, rolls out its own)."""
-    from railswitch.models.estimation import ThrowEstimator
+    from railswitch.models.diagnosis.estimation import ThrowEstimator
 
     estimator = diagnoser.estimator
     throw = estimator.prepare(_noisy(_twin_throw(estimator, "left_to_right", {}), 1))
@@ -456,7 +456,7 @@ def test_missing_bearing_of_the_paper_is_estimated_within_its_standard_deviation
 
 
 def test_shipped_bearing_port_is_what_calibration_on_the_plant_gives(plant):
-    from railswitch.models.reduced import NEUTRAL_PORT
+    from railswitch.models.reduced.hybrid import NEUTRAL_PORT
     from railswitch.services.adapters import model_store
     from railswitch.services.core.calibration import bearing_port
 
@@ -473,9 +473,9 @@ def test_calibration_check_fails_a_model_that_misfits_healthy_switches(diagnoser
     diagnosed from their first throw. The shipped poly raises no alarm on two of them; the same model with its rail's
     force 10 % off (a rail that fits its training series but not the switches, as a retrained model may) raises
     alarms and never commissions: the check fails."""
-    from railswitch.models.estimation import MODEL_RATE_HZ, ThrowEstimator
-    from railswitch.models.reduced import ReducedParams, ReducedSwitch, port_pairs
-    from railswitch.models.switch_diagnosis import ErrorModel, SwitchDiagnoser, population
+    from railswitch.models.diagnosis.estimation import MODEL_RATE_HZ, ThrowEstimator
+    from railswitch.models.reduced.hybrid import ReducedParams, ReducedSwitch, port_pairs
+    from railswitch.models.diagnosis.switch_diagnoser import ErrorModel, SwitchDiagnoser, population
     from railswitch.services.adapters import model_store
     from railswitch.services.core.calibration import healthy_check
 

@@ -1,8 +1,8 @@
 """A switch's health from its own diagnoses (issue 15): a fault that grows throw by throw shows whole in its trend."""
 import numpy as np
 
-from railswitch.models.switch import SwitchSimulation
-from railswitch.models.switch_diagnosis import COMMISSIONING_THROWS
+from railswitch.models.plant.simulation import SwitchSimulation
+from railswitch.models.diagnosis.switch_diagnoser import COMMISSIONING_THROWS
 from railswitch.services.core.switch_messages import SimulatedThrows
 
 

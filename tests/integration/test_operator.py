@@ -6,10 +6,10 @@ import re
 
 import pytest
 
-from railswitch.models.alarms import AlarmBook
-from railswitch.models.population import draw_switch
-from railswitch.models.switch import SwitchSimulation
-from railswitch.models.switch_diagnosis import COMMISSIONING_THROWS
+from railswitch.models.health.alarms import AlarmBook
+from railswitch.models.plant.population import draw_switch
+from railswitch.models.plant.simulation import SwitchSimulation
+from railswitch.models.diagnosis.switch_diagnoser import COMMISSIONING_THROWS
 from railswitch.services.adapters.baseline_store import BaselineStore
 from railswitch.services.core.fleet_diagnoser import Diagnoser
 from railswitch.services.core.switch_messages import SimulatedThrows

@@ -16,7 +16,7 @@ def test_a_non_editable_install_imports_as_railswitch_only(tmp_path):
     build = subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--quiet",
                             "--target", str(target), str(source)], capture_output=True, text=True, timeout=600)
     assert build.returncode == 0, build.stderr
-    probe = ("import importlib.util, railswitch.models.plant as plant, railswitch.services.commands.cli;"
+    probe = ("import importlib.util, railswitch.models.plant.high_fidelity as plant, railswitch.services.commands.cli;"
              "print(plant.__file__);"
              "print([name for name in ('models', 'schemas', 'services') if importlib.util.find_spec(name)])")
     elsewhere = tmp_path / "elsewhere"

@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from railswitch.models.population import draw_switch
-from railswitch.models.switch import SwitchSimulation
-from railswitch.models.switch_diagnosis import COMMISSIONING_THROWS
+from railswitch.models.plant.population import draw_switch
+from railswitch.models.plant.simulation import SwitchSimulation
+from railswitch.models.diagnosis.switch_diagnoser import COMMISSIONING_THROWS
 from railswitch.schemas import CommissionCommand, encode, key_expr
 from railswitch.services.adapters.baseline_store import BaselineStore
 from railswitch.services.adapters.zenoh_bus import Received

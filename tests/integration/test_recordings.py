@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from railswitch.models.motor import MotorParams
-from railswitch.models.plant import Plant, PlantParams
+from railswitch.models.plant.motor import MotorParams
+from railswitch.models.plant.high_fidelity import Plant, PlantParams
 from railswitch.services.adapters.compiled import MachineCode
 from railswitch.services.adapters.recordings import RecordingReader
 from railswitch.services.core.recording_check import SIGNALS, rms_bound, rms_differences

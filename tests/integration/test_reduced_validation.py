@@ -4,10 +4,10 @@ import pytest
 
 from railswitch.services.adapters import model_store
 from railswitch.services.adapters.compiled import MachineCode
-from railswitch.models.plant import Plant
-from railswitch.models.rail_models import REPRESENTATIONS
-from railswitch.models.reduced import ReducedSwitch
-from railswitch.models import training
+from railswitch.models.plant.high_fidelity import Plant
+from railswitch.models.reduced.rail_models import REPRESENTATIONS
+from railswitch.models.reduced.hybrid import ReducedSwitch
+from railswitch.models.reduced import training
 from railswitch.schemas import RAIL_MODELS
 
 MODELS = RAIL_MODELS  # every representation
@@ -28,7 +28,7 @@ def test_poly_training_on_a_small_data_set_converges_and_is_deterministic_on_any
 # One training in a process of its own, as on another machine: its BLAS kernel and threads set before numpy loads.
 TRAIN_ELSEWHERE = """
 import json, sys
-from railswitch.models.rail_models import REPRESENTATIONS
+from railswitch.models.reduced.rail_models import REPRESENTATIONS
 from railswitch.services.core.model_maintenance import reproducible_training
 trained = reproducible_training(REPRESENTATIONS["poly"], series_seeds=(5,), threads=int(sys.argv[1]))
 print(json.dumps(trained.weights.tolist()))
@@ -83,7 +83,7 @@ def test_train_command_rejects_an_output_that_is_a_file_in_one_line_before_train
 def test_compiled_rollout_matches_the_interpreted_one_and_leaves_no_files(tmp_path, monkeypatch):
     import os
 
-    from railswitch.models.reference import throw_reference
+    from railswitch.models.plant.reference import throw_reference
 
     monkeypatch.chdir(tmp_path)
     representation, weights = model_store.load("poly").representation, model_store.load("poly").weights
@@ -98,10 +98,10 @@ def test_compiled_rollout_matches_the_interpreted_one_and_leaves_no_files(tmp_pa
     assert os.listdir(tmp_path) == []
 
 
-# -- stability: no input makes a shipped model diverge (see models/validation.py) -------------------
+# -- stability: no input makes a shipped model diverge (see models/reduced/validation.py) -------------------
 @pytest.fixture(scope="module")
 def hardest_plant_series(plant):
-    from railswitch.models.validation import QUICK_VALIDATION_SEEDS, plant_series
+    from railswitch.models.reduced.validation import QUICK_VALIDATION_SEEDS, plant_series
 
     return plant_series(plant, QUICK_VALIDATION_SEEDS)
 
@@ -109,7 +109,7 @@ def hardest_plant_series(plant):
 @pytest.mark.parametrize("name", MODELS)
 def test_shipped_models_follow_the_plant_within_4_mm_on_the_hardest_validation_series(name, hardest_plant_series):
     """Seed 1003 once diverged (1e57 m) and 1023 drifted 13 cm with poly: hooks that overshot below zero."""
-    from railswitch.models.validation import validate
+    from railswitch.models.reduced.validation import validate
 
     representation, weights = model_store.load(name).representation, model_store.load(name).weights
     mse = validate(ReducedSwitch(representation, weights, compiler=MachineCode()), hardest_plant_series)["position"]
@@ -123,8 +123,8 @@ HARD_STRESS_SEEDS = (100_000, 100_002, 100_054)
 @pytest.mark.parametrize("name", MODELS)
 @pytest.mark.parametrize("rate_hz", [10.0, 50.0])
 def test_shipped_models_stay_on_the_travel_under_stress_pushes(name, rate_hz):
-    from railswitch.models.training import stress_reference
-    from railswitch.models.validation import DIVERGED_BEYOND_M, STRESS_SECONDS, excursion_m
+    from railswitch.models.reduced.training import stress_reference
+    from railswitch.models.reduced.validation import DIVERGED_BEYOND_M, STRESS_SECONDS, excursion_m
 
     representation, weights = model_store.load(name).representation, model_store.load(name).weights
     reduced = ReducedSwitch(representation, weights, rate_hz=rate_hz, compiler=MachineCode())
@@ -138,7 +138,7 @@ def test_shipped_models_stay_on_the_travel_under_stress_pushes(name, rate_hz):
 def test_shipped_weights_were_validated_with_this_model_code(name, hardest_plant_series):
     """Weights carry the position errors they had when trained. A change to the reduced model (or the plant)
     that changes them means: revalidate (and retrain or recalibrate) before shipping."""
-    from railswitch.models.validation import validate
+    from railswitch.models.reduced.validation import validate
 
     representation, weights = model_store.load(name).representation, model_store.load(name).weights
     stored = model_store.load(name).validation
@@ -154,8 +154,8 @@ def test_shipped_models_resolve_the_bolt_contact_at_the_diagnosis_step(name, pla
     """The old causal rail's inertia swung from -6000 to +3000 kg with position and speed (floored at 75 kg):
     at 100 samples/s the current's peak as a bolt set the blades moving jumped between 3.0 and 4.1 A from one
     quarter millimetre of the bolt to the next (the plant's: 2.56 A, smooth), and the MSE along a bolt with it."""
-    from railswitch.models.estimation import MODEL_RATE_HZ
-    from railswitch.models.validation import contact_peaks, plant_contact_peaks, roughness
+    from railswitch.models.diagnosis.estimation import MODEL_RATE_HZ
+    from railswitch.models.reduced.validation import contact_peaks, plant_contact_peaks, roughness
 
     stored = model_store.load(name)
     peaks = contact_peaks(ReducedSwitch(stored.representation, stored.weights, rate_hz=MODEL_RATE_HZ,

@@ -5,9 +5,9 @@ import tracemalloc
 
 import numpy as np
 
-from railswitch.models import switch_diagnosis
-from railswitch.models.switch import SwitchSimulation
-from railswitch.models.switch_diagnosis import COMMISSIONING_THROWS, MODE_PARAMETERS, Tracked
+from railswitch.models.diagnosis import switch_diagnoser
+from railswitch.models.plant.simulation import SwitchSimulation
+from railswitch.models.diagnosis.switch_diagnoser import COMMISSIONING_THROWS, MODE_PARAMETERS, Tracked
 from railswitch.services.core.switch_messages import SimulatedThrows
 
 
@@ -24,7 +24,7 @@ def _arrays(verdict) -> dict[str, int]:
 
 def test_a_switch_keeps_only_what_its_next_throws_read_and_a_persisting_fault_adds_little(diagnoser, plant,
                                                                                          monkeypatch):
-    monkeypatch.setattr(switch_diagnosis, "TRACKED_THROWS", 4)  # read when the switch is first met
+    monkeypatch.setattr(switch_diagnoser, "TRACKED_THROWS", 4)  # read when the switch is first met
     sim = SwitchSimulation(plant, noise_rel=0.01, seed=11)
     source = SimulatedThrows("kept", sim)
     for _ in range(2 * COMMISSIONING_THROWS):

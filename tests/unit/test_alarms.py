@@ -1,5 +1,5 @@
 """A switch's alarms as an operator handles them (issue 40): latched until acknowledged, repeats suppressed."""
-from railswitch.models.alarms import AlarmBook, Condition
+from railswitch.models.health.alarms import AlarmBook, Condition
 
 BOLT = Condition("fault", "medium", "left_bolt: left_bolt_offset 0.04 m", {"left_bolt_offset": 0.04})
 
@@ -84,7 +84,7 @@ def _outside(name: str, value: float) -> dict:
 
 
 def test_features_outside_their_band_raise_one_alarm_and_none_beside_a_fault():
-    from railswitch.models.switch_diagnosis import Outcome
+    from railswitch.models.diagnosis.switch_diagnoser import Outcome
     from railswitch.services.core.fleet_diagnoser import alarm_conditions
     features = [_outside("peak_current_a", 3.1), _outside("mean_current_a", 2.6),
                 {**_outside("throw_time_s", 5.0), "state": "ok"}]

@@ -32,7 +32,7 @@ def test_the_papers_estimator_takes_every_argument_the_diagnosis_passes_its_fits
     import inspect
 
     from benchmarks.paper_de import PaperEstimator
-    from railswitch.models.estimation import ThrowEstimator
+    from railswitch.models.diagnosis.estimation import ThrowEstimator
 
     ours = inspect.signature(ThrowEstimator.fit).parameters
     theirs = inspect.signature(PaperEstimator.fit).parameters
@@ -42,7 +42,7 @@ def test_the_papers_estimator_takes_every_argument_the_diagnosis_passes_its_fits
 def test_a_switch_s_outcome_names_its_faults_as_a_diagnosis_does():
     """benchmarks.diagnosis judges the paper's estimator and ours by the Outcome of a SwitchDiagnoser, as the others
     judge a Diagnosis, with named() (its absence once stopped benchmarks.diagnosis at its last part)."""
-    from railswitch.models.switch_diagnosis import Outcome
+    from railswitch.models.diagnosis.switch_diagnoser import Outcome
 
     assert Outcome("left_bolt", None, None, None, faults=("left_bolt", "missing_bearing")).named() == \
         "left_bolt+missing_bearing"

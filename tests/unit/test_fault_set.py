@@ -1,12 +1,12 @@
 """A switch's present faults: when one is repaired, how an undecided pair is settled, what a standing condition is
-called (models/fault_set.py), and which sizes are no fault (models/switch_diagnosis.py small)."""
+called (models/diagnosis/fault_set.py), and which sizes are no fault (models/diagnosis/switch_diagnoser.py small)."""
 from collections import deque
 
 import pytest
 
-from railswitch.models.fault_set import Fault, Undecided, decide_between, describe_standing, repaired
-from railswitch.models.isolation import Evidence
-from railswitch.models.switch_diagnosis import (
+from railswitch.models.diagnosis.fault_set import Fault, Undecided, decide_between, describe_standing, repaired
+from railswitch.models.diagnosis.isolation import Evidence
+from railswitch.models.diagnosis.switch_diagnoser import (
     BOLT_TOLERANCE,
     OBSTACLE_TOLERANCE,
     SHORT_SHARE,

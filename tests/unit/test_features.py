@@ -4,9 +4,9 @@ import json
 import numpy as np
 import pytest
 
-from railswitch.models.features import FEATURES, RECENT_THROWS, FeatureTrends, throw_features
-from railswitch.models.reference import Reference
-from railswitch.models.signals import MotorSignals
+from railswitch.models.health.features import FEATURES, RECENT_THROWS, FeatureTrends, throw_features
+from railswitch.models.plant.reference import Reference
+from railswitch.models.plant.signals import MotorSignals
 
 REFERENCE = Reference(np.array([0.0, 0.4, 6.0, 6.4, 7.0]), np.array([0.0, 130.9, 130.9, 0.0, 0.0]))
 T = np.arange(0.0, 7.0001, 0.02)
@@ -56,8 +56,8 @@ def test_a_commissioned_band_flags_a_feature_outside_it_and_follows_its_slope():
 
 
 def test_the_stroke_profile_places_a_load_by_the_rod_s_share_of_its_stroke_either_way():
-    from railswitch.models.drive import DriveParams
-    from railswitch.models.features import PROFILE_BINS, stroke_profile
+    from railswitch.models.plant.drive import DriveParams
+    from railswitch.models.health.features import PROFILE_BINS, stroke_profile
     drive = DriveParams()
     angle = np.concatenate([[0.0], np.cumsum(0.5 * (REFERENCE(T)[1:] + REFERENCE(T)[:-1]) * np.diff(T))])
     share = 0.5 * (1.0 - np.cos(np.minimum(angle / drive.gear_ratio, np.pi)))  # of a left-to-right throw

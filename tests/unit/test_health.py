@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from railswitch.models.health import DEFAULT_LIMITS, HealthTracker
+from railswitch.models.health.prognosis import DEFAULT_LIMITS, HealthTracker
 
 
 def feed(tracker, values, name="bearing_friction", std=250.0, seed=0):

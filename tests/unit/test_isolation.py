@@ -4,9 +4,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from railswitch.models.estimation import Estimate, effective_samples
-from railswitch.models.isolation import judge
-from railswitch.models.switch_diagnosis import BOLT_TOLERANCE, Baseline, ErrorModel, SwitchDiagnoser
+from railswitch.models.diagnosis.estimation import Estimate
+from railswitch.models.numerics.statistics import effective_samples
+from railswitch.models.diagnosis.isolation import judge
+from railswitch.models.diagnosis.switch_diagnoser import BOLT_TOLERANCE, Baseline, ErrorModel, SwitchDiagnoser
 
 
 def test_effective_sample_count_is_the_count_for_white_noise_and_small_for_smooth_error():
@@ -125,8 +126,8 @@ def test_a_missing_bearing_carries_what_the_chairs_may_have_done_since_the_last_
     chairs' level: k faulty throws on, the chairs may have moved k times one throw's allowance (DRIFT), which the
     combined bearing carries (fleet seed 2: chairs drying to twice their friction read as a bearing 1600 N·s/m
     larger, 3.7 std off without it). One throw, or a switch not commissioned (no drift prior), adds nothing."""
-    from railswitch.models.reference import DIRECTIONS
-    from railswitch.models.switch_diagnosis import (CHAIRS_AS_BEARING, DRIFT, DRIFTING, Baseline, Reported,
+    from railswitch.models.plant.reference import DIRECTIONS
+    from railswitch.models.diagnosis.switch_diagnoser import (CHAIRS_AS_BEARING, DRIFT, DRIFTING, Baseline, Reported,
                                                     Tracked, population)
 
     unused = SimpleNamespace(reduced=SimpleNamespace(params=SimpleNamespace(plant=SimpleNamespace(drive=None))))
@@ -172,8 +173,8 @@ def test_a_baselines_summaries_follow_every_healthy_throw_added_and_its_copy_fro
     """Level, gains and model weight are kept between throws (they are read some 24 times a throw); each throw added
     in commissioning changes them as if they were computed afresh, and a baseline read back from its dict has its
     own."""
-    from railswitch.models.reference import DIRECTIONS
-    from railswitch.models.switch_diagnosis import Baseline
+    from railswitch.models.plant.reference import DIRECTIONS
+    from railswitch.models.diagnosis.switch_diagnoser import Baseline
 
     baseline, rng = Baseline(), np.random.default_rng(5)
     for k in range(baseline.needed):

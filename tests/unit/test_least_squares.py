@@ -1,7 +1,7 @@
-"""The least-squares solver of training and estimation (models/least_squares.py)."""
+"""The least-squares solver of training and estimation (models/numerics/least_squares.py)."""
 import numpy as np
 
-from railswitch.models.least_squares import levenberg_marquardt
+from railswitch.models.numerics.least_squares import levenberg_marquardt
 
 
 def _linear_problem(seed: int = 3):
@@ -184,7 +184,7 @@ def test_the_same_on_every_processor_algebra_agrees_with_blas_to_its_rounding():
     """Its a'a splits each column into two integers of b bits and drops the low parts' product: each row's product
     off by 2^-2b of the columns' largest entries (b = 19 for 15 000 rows: 4e-12), 2.3e-11 of the columns' norms here;
     its sums and its Cholesky solve round as BLAS's do."""
-    from railswitch.models.least_squares import SAME_ON_EVERY_PROCESSOR as algebra
+    from railswitch.models.numerics.least_squares import SAME_ON_EVERY_PROCESSOR as algebra
 
     rng = np.random.default_rng(5)
     a = rng.normal(size=(15_000, 30)) * np.logspace(-3, 3, 30)  # columns of six decades
@@ -198,7 +198,7 @@ def test_the_same_on_every_processor_algebra_agrees_with_blas_to_its_rounding():
 
 
 def test_a_fit_in_the_same_on_every_processor_algebra_reaches_the_least_squares_solution():
-    from railswitch.models.least_squares import SAME_ON_EVERY_PROCESSOR
+    from railswitch.models.numerics.least_squares import SAME_ON_EVERY_PROCESSOR
 
     best, linearise, cost, _, _ = _linear_problem()
     solution = levenberg_marquardt(linearise, best + 5.0, cost=cost, tolerance=1e-10, algebra=SAME_ON_EVERY_PROCESSOR)

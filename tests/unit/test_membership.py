@@ -16,7 +16,7 @@ from railswitch.schemas import Diagnosis, SwitchState, ThrowEvent, decode, encod
 from railswitch.services.core.handover import HeldThrow, HeldThrows, StateCache, diagnosis_key, throw_key
 from railswitch.services.core.membership import Membership, rendezvous_owner, weight
 from railswitch.services.core.throw_cutter import CutThrow
-from railswitch.models.signals import MotorSignals
+from railswitch.models.plant.signals import MotorSignals
 
 SWITCHES = [f"sw{k}" for k in range(3000)]
 MEMBERS = ["vm-1201", "vm-1202", "vm-1203"]

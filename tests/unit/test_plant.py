@@ -4,10 +4,10 @@ import math
 import numpy as np
 import pytest
 
-from railswitch.models.drive import motor_angle_at_rod
-from railswitch.models.faults import fault_vector
-from railswitch.models.plant import Plant
-from railswitch.models.switch import SwitchSimulation
+from railswitch.models.plant.drive import motor_angle_at_rod
+from railswitch.models.plant.faults import fault_vector
+from railswitch.models.plant.high_fidelity import Plant
+from railswitch.models.plant.simulation import SwitchSimulation
 
 
 def throws(plant, n=2, faults=None):
@@ -184,9 +184,9 @@ def test_lock_holds_a_closed_blade_until_the_driving_bolt_arrives(plant):
 
 
 def test_a_run_keeps_its_numbers_when_the_plant_runs_again_and_they_are_those_of_the_dm_interface(plant):
-    """Runs go through buffers the plant reuses (models/buffers.py): a trajectory owns its arrays, and they are the
+    """Runs go through buffers the plant reuses (models/numerics/buffers.py): a trajectory owns its arrays, and they are the
     numbers CasADi's matrix interface gives for the same call."""
-    from railswitch.models.reference import throw_reference
+    from railswitch.models.plant.reference import throw_reference
 
     state = plant.start_throw(plant.rest_state(1.0))
     first = plant.run(state, 2.0, 50.0, reference=throw_reference("left_to_right"))
@@ -211,7 +211,7 @@ def test_the_reference_reaches_the_plant_as_its_own_lines_one_pair_of_numbers_a_
     """CVODES stops wherever the plant's control changes. Over the samples of one piece of the profile the control is
     that piece's line to the last bit, so the integrator stops at the profile's breakpoints, not at every sample of a
     ramp (chords through the samples differ in their last bits); an interval that spans a breakpoint gets the chord."""
-    from railswitch.models.reference import throw_reference
+    from railswitch.models.plant.reference import throw_reference
 
     reference = throw_reference("left_to_right", stroke_s=stroke_s)
     dt, steps = 1.0 / 50.0, 350

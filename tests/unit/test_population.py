@@ -1,8 +1,8 @@
 """Switches that differ: the plant's own parameters, the population, scenario files that set and change them."""
 import pytest
 
-from railswitch.models.plant import PlantParams, nominal_values
-from railswitch.models.population import credible_range, draw_switch
+from railswitch.models.plant.high_fidelity import PlantParams, nominal_values
+from railswitch.models.plant.population import credible_range, draw_switch
 from railswitch.schemas.plant import PLANT_PARAMETERS, check_plant_value
 from railswitch.schemas.scenario import Scenario, SwitchPlan
 

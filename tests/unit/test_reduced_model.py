@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 
 from railswitch.services.adapters import model_store
-from railswitch.models.reduced import PARAMETERS
-from railswitch.models.rail_models import REPRESENTATIONS
-from railswitch.models.reduced import OUTPUTS, ReducedParams, ReducedSwitch
-from railswitch.models.switch import SwitchSimulation
+from railswitch.models.reduced.hybrid import PARAMETERS
+from railswitch.models.reduced.rail_models import REPRESENTATIONS
+from railswitch.models.reduced.hybrid import OUTPUTS, ReducedParams, ReducedSwitch
+from railswitch.models.plant.simulation import SwitchSimulation
 from railswitch.schemas import RAIL_MODELS
 
 MODELS = RAIL_MODELS  # every representation
@@ -69,7 +69,7 @@ def output_sensitivities(reduced, s0, reference, faults):
 
 @pytest.mark.parametrize("name", MODELS)
 def test_outputs_have_finite_nonzero_derivatives_where_each_fault_acts(name):
-    from railswitch.models.reference import throw_reference
+    from railswitch.models.plant.reference import throw_reference
 
     representation, weights = model_store.load(name).representation, model_store.load(name).weights
     reduced = ReducedSwitch(representation, weights)
@@ -91,7 +91,7 @@ def test_outputs_have_finite_nonzero_derivatives_where_each_fault_acts(name):
 def test_sensitivity_rollout_gives_the_derivatives_of_the_rollout(name):
     """The estimator's Jacobians (sensitivities carried through each step, the learned rails through their
     features' stand-ins) equal CasADi's AD of the rollout."""
-    from railswitch.models.reference import throw_reference
+    from railswitch.models.plant.reference import throw_reference
 
     representation, weights = model_store.load(name).representation, model_store.load(name).weights
     reduced = ReducedSwitch(representation, weights)
@@ -137,7 +137,7 @@ def test_kernels_make_the_features_and_the_steps_of_the_networks_written_out(nam
     """A learned rail's kernels (its features as C loops over the hidden units, Representation.kernel_code) give its
     features and their Jacobian, and the diagnosis's steps made with them (a rollout's and one carrying five
     sensitivities) give those made without, at states across the travel, to the rounding of the units' sums."""
-    from railswitch.models.reduced import kernels
+    from railswitch.models.reduced.hybrid import kernels
     from railswitch.services.adapters.compiled import MachineCode
 
     stored = model_store.load(name)
@@ -176,7 +176,7 @@ def test_without_kernels_the_diagnosis_writes_the_networks_out():
     networks (poly), or where the C compiler refuses a kernel's code: the steps then write the networks out."""
     import shutil
 
-    from railswitch.models.reduced import kernels
+    from railswitch.models.reduced.hybrid import kernels
     from railswitch.services.adapters.compiled import MachineCode
 
     causal, poly = model_store.load("causal"), model_store.load("poly")
@@ -192,8 +192,8 @@ def test_without_kernels_the_diagnosis_writes_the_networks_out():
 def test_the_switch_stage_of_training_has_the_jacobian_of_the_rollout_in_the_weights():
     """Training's switch stage: sensitivities over the rail's weights, a block of them per rollout, equal CasADi's
     AD of the rollout (the Jacobian the stage used to build, at ten times the cost)."""
-    from railswitch.models import training
-    from railswitch.models.reference import throw_reference
+    from railswitch.models.reduced import training
+    from railswitch.models.plant.reference import throw_reference
 
     representation, weights = model_store.load("causal").representation, model_store.load("causal").weights
     reduced = ReducedSwitch(representation, weights)
@@ -229,7 +229,7 @@ def test_hook_levels_stay_between_0_and_1_when_a_bolt_arrives_within_a_step():
     from hypothesis import given, settings
     from hypothesis import strategies as st
 
-    from railswitch.models.drive import motor_angle_at_rod
+    from railswitch.models.plant.drive import motor_angle_at_rod
 
     representation, weights = model_store.load("poly").representation, model_store.load("poly").weights
     reduced = {rate: ReducedSwitch(representation, weights, rate_hz=rate) for rate in (10.0, 50.0)}
@@ -260,7 +260,7 @@ def test_the_shooting_stage_of_training_has_the_jacobian_of_the_rollout_in_z(nam
     """Training's shooting stage carries the segments' derivatives in z through each step (the step's own Jacobian
     and the chain rule): they equal CasADi's AD of the rollout, which the stage used to build at five times the
     cost for nn."""
-    from railswitch.models import training
+    from railswitch.models.reduced import training
 
     representation = REPRESENTATIONS[name]
     rng = np.random.default_rng(4)
@@ -293,8 +293,8 @@ def test_the_shooting_stage_of_training_has_the_jacobian_of_the_rollout_in_z(nam
 def test_the_causal_regression_in_chunks_has_every_samples_residual_and_gradient():
     """The regression evaluates its rows REGRESSION_CHUNK samples a call (the last chunk padded): the same residual
     and Jacobian, row for row, as the one-sample Functions it is made of, on one thread or two."""
-    from railswitch.models import training
-    from railswitch.models.reduced import stock_rail_force
+    from railswitch.models.reduced import training
+    from railswitch.models.reduced.hybrid import stock_rail_force
 
     representation, reduced = REPRESENTATIONS["causal"], ReducedParams()
     rng = np.random.default_rng(5)

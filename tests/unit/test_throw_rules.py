@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from railswitch.models.reference import throw_reference
-from railswitch.models.signals import MotorSignals
-from railswitch.models.switch_diagnosis import MAX_THROW_S, ThrowInput, problem
+from railswitch.models.plant.reference import throw_reference
+from railswitch.models.plant.signals import MotorSignals
+from railswitch.models.diagnosis.switch_diagnoser import MAX_THROW_S, ThrowInput, problem
 from railswitch.schemas import MotorSample, ThrowEvent
 from railswitch.services.core.throw_cutter import cut_throws
 

@@ -1,12 +1,12 @@
-"""Where a throw's samples fall on the estimator's model samples (models/estimation.py _Timeline)."""
+"""Where a throw's samples fall on the estimator's model samples (models/diagnosis/estimation.py _Timeline)."""
 import numpy as np
 import pytest
 
-from railswitch.models.estimation import CHUNK_SAMPLES, GRID_RATE_HZ, MODEL_RATE_HZ, Measurement, _Timeline
-from railswitch.models.rail_models import REPRESENTATIONS
-from railswitch.models.reduced import ReducedSwitch
-from railswitch.models.reference import throw_reference
-from railswitch.models.signals import MotorSignals
+from railswitch.models.diagnosis.estimation import CHUNK_SAMPLES, GRID_RATE_HZ, MODEL_RATE_HZ, Measurement, _Timeline
+from railswitch.models.reduced.rail_models import REPRESENTATIONS
+from railswitch.models.reduced.hybrid import ReducedSwitch
+from railswitch.models.plant.reference import throw_reference
+from railswitch.models.plant.signals import MotorSignals
 
 
 @pytest.fixture(scope="module")

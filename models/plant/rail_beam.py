@@ -18,7 +18,7 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
-from railswitch.models.adjuster import unilateral_contact
+from railswitch.models.plant.adjuster import unilateral_contact
 
 GRAVITY_M_S2 = 9.81
 

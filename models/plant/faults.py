@@ -1,6 +1,6 @@
 """Fault augmentation (paper, section "Fault augmentation").
 
-Bolt offsets act inside the adjuster (models/adjuster.py); this file adds the
+Bolt offsets act inside the adjuster (models/plant/adjuster.py); this file adds the
 two rail-side fault components: extra viscous friction where bearings are
 stuck or missing, and localised friction around an obstacle.
 """

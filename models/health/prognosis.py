@@ -25,7 +25,7 @@ alone (an F test at TREND_FALSE_ALARM, with MIN_RISING estimates past the hinge 
 then no trend is shown (the filter's slope is reported, but not taken to the limit). What the line's
 slope may be off by is the larger of
 - the least-squares covariance from the residuals' scatter, widened by how correlated the residuals
-  are (a staircase's are: models/estimation.py effective_samples), and
+  are (a staircase's are: models/diagnosis/estimation.py effective_samples), and
 - the growth's own unsteadiness: how the rates over two, three and four equal stretches of it
   scatter (for a staircase of irregular steps, far more than its residuals about one line say).
 
@@ -55,7 +55,7 @@ from functools import lru_cache
 import numpy as np
 from scipy import special
 
-from railswitch.models.estimation import effective_samples
+from railswitch.models.numerics.statistics import effective_samples
 from railswitch.schemas.faults import FAULT_PARAMETERS
 
 # Maintenance limits (departures from the commissioned baseline) where a switch needs a visit. Defaults,

@@ -7,7 +7,7 @@ is replaced by a smooth one, so outputs have exact derivatives with respect to
 the fault parameters.
 
 Each integration step splits the state in two (Strang splitting): the lock's hook
-levels relax exactly over half a step (Rush-Larsen, models/integrators.py), the
+levels relax exactly over half a step (Rush-Larsen, models/numerics/integrators.py), the
 six mechanical and electrical states take one ROS2 step (stiff-stable, so obstacle
 friction and contacts of any size are safe) with the hooks held, and the hooks relax
 over the other half. A hook lets go at up to 200/s, within one 20 ms sample, and the
@@ -26,17 +26,17 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
-from railswitch.models.adjuster import adjuster_force, smooth_contact
-from railswitch.models.drive import adjuster_on_rod, rod_kinematics
-from railswitch.models.integrators import relax, ros2
-from railswitch.models.faults import FAULT_ORDER, obstacle_profile
-from railswitch.models.rail_beam import GRAVITY_M_S2, RailBeam
-from railswitch.models.lock import LockTerms, latched_hooks, lock_terms
-from railswitch.models.motor import controller, motor_derivatives
-from railswitch.models.plant import PlantParams
-from railswitch.models.rail_models import Representation
-from railswitch.models.reference import DIRECTIONS, Reference
-from railswitch.models.smooth import smooth_clip
+from railswitch.models.plant.adjuster import adjuster_force, smooth_contact
+from railswitch.models.plant.drive import adjuster_on_rod, rod_kinematics
+from railswitch.models.numerics.integrators import relax, ros2
+from railswitch.models.plant.faults import FAULT_ORDER, obstacle_profile
+from railswitch.models.plant.rail_beam import GRAVITY_M_S2, RailBeam
+from railswitch.models.plant.lock import LockTerms, latched_hooks, lock_terms
+from railswitch.models.plant.motor import controller, motor_derivatives
+from railswitch.models.plant.high_fidelity import PlantParams
+from railswitch.models.reduced.rail_models import Representation
+from railswitch.models.plant.reference import DIRECTIONS, Reference
+from railswitch.models.numerics.smooth import smooth_clip
 from railswitch.schemas.faults import FAULT_PARAMETERS
 
 STATES = ("angle_rad", "velocity_rad_s", "integral_v", "current_a", "rail_position_m", "rail_velocity_m_s",
@@ -57,7 +57,7 @@ class ReducedParams:
 
     plant: PlantParams = field(default_factory=PlantParams)
     substeps: int = 1  # integration steps per sample, at least; more where a sample is longer than max_step_s
-    # The longest integration step: the one the rail representations are trained at (models/training.py).
+    # The longest integration step: the one the rail representations are trained at (models/reduced/training.py).
     # A learned causal map is not dissipative by construction, and past its training step its
     # explicitly treated part grows (the causal rail diverged at 10 Hz in one step per sample).
     max_step_s: float = 0.02

@@ -16,11 +16,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from railswitch.models.plant import Plant, Trajectory
-from railswitch.models.reduced import ReducedSwitch
-from railswitch.models.reference import DIRECTIONS, THROW_DURATION_S, Reference, throw_reference
-from railswitch.models.switch import SwitchSimulation
-from railswitch.models.training import random_push_run, stress_reference
+from railswitch.models.plant.high_fidelity import Plant, Trajectory
+from railswitch.models.reduced.hybrid import ReducedSwitch
+from railswitch.models.plant.reference import DIRECTIONS, THROW_DURATION_S, Reference, throw_reference
+from railswitch.models.plant.simulation import SwitchSimulation
+from railswitch.models.reduced.training import random_push_run, stress_reference
 from railswitch.schemas.faults import FAULT_PARAMETERS
 
 DIVERGED_BEYOND_M = 0.03  # past a stock rail by more than this is no motion the switch can make

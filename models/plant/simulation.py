@@ -9,9 +9,9 @@ from functools import lru_cache
 
 import numpy as np
 
-from railswitch.models.plant import Plant
-from railswitch.models.reference import DIRECTIONS, STROKE_S, THROW_DURATION_S, Reference, throw_reference
-from railswitch.models.signals import SIGNAL_NAMES, MotorSignals
+from railswitch.models.plant.high_fidelity import Plant
+from railswitch.models.plant.reference import DIRECTIONS, STROKE_S, THROW_DURATION_S, Reference, throw_reference
+from railswitch.models.plant.signals import SIGNAL_NAMES, MotorSignals
 
 SETTLE_S = 1.0  # unpowered settling before the first sample, from the closed left position
 

@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from railswitch.models.drive import DriveParams
+from railswitch.models.plant.drive import DriveParams
 
 THROW_DURATION_S = 7.0  # the reference profile of the machine type modelled: a 6.4 s stroke, then still
 STROKE_S = 6.4

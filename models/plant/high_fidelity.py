@@ -20,14 +20,14 @@ from threading import Lock
 import casadi as ca
 import numpy as np
 
-from railswitch.models.adjuster import AdjusterParams, adjuster_energy, adjuster_force
-from railswitch.models.buffers import InPlace
-from railswitch.models.drive import DriveParams, adjuster_on_rod, binding_torque, rod_kinematics
-from railswitch.models.lock import LockParams, latched_hooks, lock_terms
-from railswitch.models.faults import FAULT_ORDER, ObstacleParams, bearing_weights, fault_vector, obstacle_profile, unpack
-from railswitch.models.motor import ControllerParams, MotorParams, controller, motor_derivatives
-from railswitch.models.rail_beam import RailBeam, RailParams
-from railswitch.models.reference import Reference
+from railswitch.models.plant.adjuster import AdjusterParams, adjuster_energy, adjuster_force
+from railswitch.models.numerics.buffers import InPlace
+from railswitch.models.plant.drive import DriveParams, adjuster_on_rod, binding_torque, rod_kinematics
+from railswitch.models.plant.lock import LockParams, latched_hooks, lock_terms
+from railswitch.models.plant.faults import FAULT_ORDER, ObstacleParams, bearing_weights, fault_vector, obstacle_profile, unpack
+from railswitch.models.plant.motor import ControllerParams, MotorParams, controller, motor_derivatives
+from railswitch.models.plant.rail_beam import RailBeam, RailParams
+from railswitch.models.plant.reference import Reference
 from railswitch.schemas.plant import PLANT_PARAMETERS
 
 PLANT_VARIABLES: tuple[str, ...] = tuple(PLANT_PARAMETERS)  # a switch's own parameters, inputs of the plant
@@ -190,7 +190,7 @@ class Plant:
     @lru_cache(maxsize=16)
     def _evaluators(self, dt_s: float, steps: int) -> tuple[InPlace, InPlace]:
         """The integrator over that grid and the outputs at its samples, on numpy buffers of their own
-        (models/buffers.py): the states to and from DMs took a large share of a throw's time."""
+        (models/numerics/buffers.py): the states to and from DMs took a large share of a throw's time."""
         outputs = self._outputs.map("outputs_at_samples", "serial", steps, [1, 2], [])  # one fault and plant vector
         return InPlace(self._integrator(dt_s, steps)), InPlace(outputs)
 

@@ -4,7 +4,7 @@ Data (paper, section "Hybrid rail switch model"): the plant's motor follows rand
 references that push the blades back and forth; we record force, position,
 velocity and acceleration at the adjuster-rail connection every 0.02 s.
 
-Fits use CasADi's automatic differentiation and Levenberg-Marquardt (models/least_squares.py), with bounds
+Fits use CasADi's automatic differentiation and Levenberg-Marquardt (models/numerics/least_squares.py), with bounds
 (non-negative coefficients, a floor on the mass) built into the parametrisation:
 - acausal forms: multiple shooting, each 1 s segment simulated (ROS2) from its
   measured start under the measured force, positions and velocities compared;
@@ -21,13 +21,13 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from railswitch.models.buffers import InPlace
-from railswitch.models.integrators import ros2
-from railswitch.models.least_squares import SAME_ON_EVERY_PROCESSOR, levenberg_marquardt
-from railswitch.models.plant import Plant
-from railswitch.models.rail_models import FORCE_SCALE_N, CausalRail, NNRail, Representation
-from railswitch.models.reduced import OUTPUTS, PARAMETERS, STATES, Compiler, ReducedParams, rolled, stock_rail_force
-from railswitch.models.reference import Reference
+from railswitch.models.numerics.buffers import InPlace
+from railswitch.models.numerics.integrators import ros2
+from railswitch.models.numerics.least_squares import SAME_ON_EVERY_PROCESSOR, levenberg_marquardt
+from railswitch.models.plant.high_fidelity import Plant
+from railswitch.models.reduced.rail_models import FORCE_SCALE_N, CausalRail, NNRail, Representation
+from railswitch.models.reduced.hybrid import OUTPUTS, PARAMETERS, STATES, Compiler, ReducedParams, rolled, stock_rail_force
+from railswitch.models.plant.reference import Reference
 
 RATE_HZ = 50.0
 SEGMENT_SAMPLES = 50
@@ -97,7 +97,7 @@ def rail_experiment(plant: Plant, seed: int, duration_s: float = 100.0) -> RailD
 
 def nominal_throw_data(plant: Plant, throws: int = 2) -> RailData:
     """The connection's signals over nominal throws (left to right first), as in normal service."""
-    from railswitch.models.reference import DIRECTIONS, throw_reference
+    from railswitch.models.plant.reference import DIRECTIONS, throw_reference
 
     state = settled_state(plant)
     parts = []
@@ -241,7 +241,7 @@ RIDGE = 1e-2  # weight decay of the causal regression
 # (`train`). Fine-tuned freely, they gave the causal rail an inertia far negative and far positive across its
 # travel and speeds (floored at 75 kg): at the diagnosis's 10 ms step the current's peak as a bolt set the blades
 # moving jumped from one quarter millimetre of the bolt to the next, and a bolt's MSE with it
-# (models/validation.py contact_peaks). Of priors 0.01, 1, 10, 100 and 1000 (all held), 1 follows the 25
+# (models/reduced/validation.py contact_peaks). Of priors 0.01, 1, 10, 100 and 1000 (all held), 1 follows the 25
 # validation series best, in mean and worst position RMSE (better than free, than 0.01 on the hardest three and
 # than 1000, the old prior, there), its inertia positive and moderate throughout.
 ACCELERATION_INPUT_RIDGE = 1.0
@@ -397,7 +397,7 @@ Progress = Callable[[str, int, float], None]
 
 def nominal_switch_targets(plant: Plant, reduced, throws: int = 2) -> list[SwitchTarget]:
     """The plant's nominal throws as targets for the full reduced switch model."""
-    from railswitch.models.switch import SwitchSimulation
+    from railswitch.models.plant.simulation import SwitchSimulation
 
     sim = SwitchSimulation(plant, rate_hz=RATE_HZ)
     targets = []
@@ -463,7 +463,7 @@ def train(representation: Representation, plant: Plant, *, seed: int = 0, series
     """Fit one representation to plant data, deterministically for a seed (and the same on any number of
     `threads`, which share the data's segments and samples); `compiler` makes the causal regression's
     per-sample functions and the fine-tuning's chunks machine code."""
-    from railswitch.models.reduced import ReducedSwitch
+    from railswitch.models.reduced.hybrid import ReducedSwitch
 
     data = training_data(plant, series_seeds)
     w0 = representation.initial_weights(seed)

@@ -1,6 +1,6 @@
 """Fault detection and isolation from one switch's throws (paper, section "Fault diagnosis").
 
-Per throw: every hypothesis is fitted (models/estimation.py), then a fault mode
+Per throw: every hypothesis is fitted (models/diagnosis/estimation.py), then a fault mode
 is detected when its fit explains significantly more than the nominal fit. The
 significance is an F test whose degrees of freedom come from the residual
 itself: model error is smooth, not white, so the number of independent
@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import special
 
-from railswitch.models.estimation import DRIVING_BOLT, WITHOUT, Estimate
+from railswitch.models.diagnosis.estimation import DRIVING_BOLT, WITHOUT, Estimate
 from railswitch.schemas.faults import MODE_PARAMETERS
 
 FALSE_ALARM_RATE = 1e-3  # per fault mode and throw, under the nominal hypothesis

@@ -16,7 +16,7 @@ reduced model can show:
   machine's Coulomb friction that the drive-friction fault adds to: free with the
   population as their prior until the switch is commissioned, with its own baseline after.
 
-A prior charges a fit for straying (models/estimation.py HypothesisSpec), so a switch is
+A prior charges a fit for straying (models/diagnosis/estimation.py HypothesisSpec), so a switch is
 called healthy when its throw is what a plausible member of the population (or, once
 commissioned, the switch itself) would do, not whatever the nuisances could be bent to.
 
@@ -26,11 +26,11 @@ a healthy throw by absorbing model error). Until then decisions are provisional,
 against the population. A fault is a departure the free parameters cannot explain:
 bearing friction and drive friction are reported as departures from the baseline.
 
-A switch's state is a set of present faults (models/fault_set.py). Each throw checks that it
+A switch's state is a set of present faults (models/diagnosis/fault_set.py). Each throw checks that it
 can be diagnosed, estimates where it starts (the motor angle from every sample, the blades where
 the previous throw's fit left them), fits the switch as it now is (its present faults free), the
 same plus each mode it does not have and the same without each present fault (a bolt only in the
-throws it drives; the other bolt is held at its latest estimate), judges them (models/isolation.py)
+throws it drives; the other bolt is held at its latest estimate), judges them (models/diagnosis/isolation.py)
 and adds or repairs faults. Each present fault's size combines every throw since it was confirmed
 that can see it, weighted by their own variances, with the model's error (which does not average
 out) added once. A switch that cannot be commissioned as healthy says so, and an operator may
@@ -46,10 +46,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy import stats
 
-from railswitch.models.drive import DriveParams
-from railswitch.models.estimation import DRIVING_BOLT, WITHOUT, Estimate, HypothesisSpec, Measurement, ThrowEstimator
-from railswitch.models.features import BAND_FLOOR, PROFILE_BINS, STILL_SHARE, FeatureTrends, stroke_profile, throw_features
-from railswitch.models.fault_set import (
+from railswitch.models.plant.drive import DriveParams
+from railswitch.models.diagnosis.estimation import DRIVING_BOLT, WITHOUT, Estimate, HypothesisSpec, Measurement, ThrowEstimator
+from railswitch.models.health.features import BAND_FLOOR, PROFILE_BINS, STILL_SHARE, FeatureTrends, stroke_profile, throw_features
+from railswitch.models.diagnosis.fault_set import (
     MAGNITUDE,
     RETURN_SIGMAS,
     Fault,
@@ -60,8 +60,8 @@ from railswitch.models.fault_set import (
     repaired,
     size_of,
 )
-from railswitch.models.health import TRACKED, Health, HealthTracker
-from railswitch.models.isolation import (
+from railswitch.models.health.prognosis import TRACKED, Health, HealthTracker
+from railswitch.models.diagnosis.isolation import (
     EVIDENCE_THROWS,
     FALSE_ALARM_RATE,
     MODEL_ERROR_MARGIN,
@@ -73,10 +73,10 @@ from railswitch.models.isolation import (
     presence,
     separable,
 )
-from railswitch.models.population import COPPER_PER_K, credible_range, resistance_at, spread
-from railswitch.models.reduced import NUISANCES
-from railswitch.models.reference import DIRECTIONS, Reference
-from railswitch.models.signals import MotorSignals
+from railswitch.models.plant.population import COPPER_PER_K, credible_range, resistance_at, spread
+from railswitch.models.reduced.hybrid import NUISANCES
+from railswitch.models.plant.reference import DIRECTIONS, Reference
+from railswitch.models.plant.signals import MotorSignals
 from railswitch.schemas.faults import FAULT_PARAMETERS, MODE_PARAMETERS
 from railswitch.schemas.plant import PLANT_PARAMETERS
 
@@ -85,11 +85,11 @@ SHORT_START_M = 0.002  # a throw starting further than this from the stock rail 
 # An obstacle fitted this close to where a throw's own loose bolt stops the blades short is that stroke end (within half
 # an obstacle's width: the ones seen sat within 1 mm of it; a real one 12 mm from it was found).
 STROKE_END_M = 0.006
-OBSTACLE_REACH_M = 0.024  # an obstacle drags the blades within two of its widths (models/faults.py: 12 mm) either side
+OBSTACLE_REACH_M = 0.024  # an obstacle drags the blades within two of its widths (models/plant/faults.py: 12 mm) either side
 GAP_TOLERANCE = 0.25  # of a sample period, for "the samples are evenly spaced"
 # A throw ends when the point machine detects its end position, earlier or later than its reference profile
 # ends; it is cut short only when it ends while the motor is still asked to turn (or, where measured, still
-# turns) at more than STILL_SHARE of its top speed (models/features.py: where the motor has stopped).
+# turns) at more than STILL_SHARE of its top speed (models/health/features.py: where the motor has stopped).
 # The throws a decided fault's size is combined over: those since it appeared, at most the latest TRACKED_THROWS (ten
 # days of a switch's throws). Each throw of a fault left in place adds to its switch's memory (a Tracked: the
 # fault's few parameters; figures in docs/results.md, benchmarks.memory); combined over so many, the model's error, whose
@@ -143,7 +143,7 @@ TIGHT_TOLERANCE = 0.010
 SHORT_SHARE = 0.35
 # An obstacle fitted below this friction is no fault: on healthy switches the obstacle's hypothesis reads the model's
 # error as one of 2000 to 2600 N·s/m at an end of the travel, and on a switch whose rollers lose 1.8 times the
-# population's, as 3500 to 4000 (seen with poly); a third of its maintenance limit (models/health.py), a tenth of the
+# population's, as 3500 to 4000 (seen with poly); a third of its maintenance limit (models/health/prognosis.py), a tenth of the
 # smallest obstacle any benchmark or test injects.
 OBSTACLE_TOLERANCE = 10_000.0
 # How far a missing bearing's fit may go beyond the contract's range: a switch whose rollers lose twice what the
@@ -151,14 +151,14 @@ OBSTACLE_TOLERANCE = 10_000.0
 BEARING_REACH = 1.5
 # A switch's own quantity that no fault mode names is an anomaly when the fit puts it at its credible bound (within
 # AT_BOUND of the range) from a commissioned level well inside it, or moves it further than the weather can: from its
-# commissioned level, more than the winding's temperature spans over a year (-25 … +55 °C: models/population.py); from
+# commissioned level, more than the winding's temperature spans over a year (-25 … +55 °C: models/plant/population.py); from
 # its recent level, more than a day's swing with the winding's own warming (30 K). A switch thrown less often than
 # daily may see more between two throws. Downwards each allows the supply's tolerance too: a supply below its usual
 # reads as a lower resistance (the drive gives less current for the same demand), and a healthy switch's supply may sit
-# anywhere within +-10 % of its nominal (models/population.py).
+# anywhere within +-10 % of its nominal (models/plant/population.py).
 # A throw no hypothesis explains is an anomaly: the best fit's residual (its MSE over its effective samples) beyond
 # MODEL_ERROR_MARGIN times what the switch's commissioning throws left, at the chi-square quantile of its effective
-# samples at FALSE_ALARM_RATE (models/isolation.py: the same test a fault's detection makes).
+# samples at FALSE_ALARM_RATE (models/diagnosis/isolation.py: the same test a fault's detection makes).
 ANOMALOUS = "motor.resistance_ohm"
 AT_BOUND = 0.005
 SEASON = resistance_at(55.0) / resistance_at(-25.0)
@@ -169,7 +169,7 @@ OBSTACLE_GRID = tuple({"obstacle_position": round(float(p), 3), "obstacle_fricti
                       for p in np.arange(1.02, 1.1801, 0.02) for f in (3e4, 1.5e5))
 # A gearbox that binds at one point of the stroke loads the motor there, and at the same motor angle whichever way the
 # switch throws; the reduced models have no such load and read it as an obstacle, a bearing or drive friction. Its
-# mark in the stroke's current profile against the commissioning throws' (models/features.py): in both directions a
+# mark in the stroke's current profile against the commissioning throws' (models/health/features.py): in both directions a
 # rise above BAND_FLOOR of the commissioned peak current where it is highest, LOCAL times its mean rise over the
 # stroke (a load along the whole stroke raises it alike: drive friction evenly, a missing bearing, whose friction
 # follows the blades' speed, mid-stroke at about twice its mean; a bell a tenth of the stroke wide, about ten times),
@@ -178,7 +178,7 @@ OBSTACLE_GRID = tuple({"obstacle_position": round(float(p), 3), "obstacle_fricti
 # only the speed loop's lag apart (within 0.035 in the plant).
 LOCAL = 3.0
 SAME_PLACE = 0.06
-# A settled throw's (models/estimation.py SETTLED): an obstacle that appears without changing the throw is a small one.
+# A settled throw's (models/diagnosis/estimation.py SETTLED): an obstacle that appears without changing the throw is a small one.
 SMALL_OBSTACLE_GRID = tuple(point for point in OBSTACLE_GRID if point["obstacle_friction"] == 3e4)
 
 
@@ -263,14 +263,14 @@ class Population:
     prior: dict[str, tuple[float, float]]  # mean and standard deviation of the nuisance and baselined parameters
     bounds: dict[str, tuple[float, float]]  # their credible ranges: hard limits
     gains: dict[str, dict[str, float]]  # per direction and mode: the MSE gain on a healthy throw (model error)
-    model_weight: float  # healthy throws' nominal MSE over effective samples (models/estimation.py fit_all)
+    model_weight: float  # healthy throws' nominal MSE over effective samples (models/diagnosis/estimation.py fit_all)
 
 
 LOG_PRIOR = ("rail.chair_friction_coefficient", "motor.coulomb_friction_nm")  # skewed, positive: priors on log
 
 
 def population(gains: dict[str, dict[str, float]] | None = None, model_weight: float = 0.0) -> Population:
-    """The population of models/population.py, in the reduced model's parameters (the chairs' and the point
+    """The population of models/plant/population.py, in the reduced model's parameters (the chairs' and the point
     machine's friction on a log scale); `gains` and `model_weight` come from the reduced model's calibration on
     healthy switches of the population."""
     prior = {name: spread(name, log=name in LOG_PRIOR) for name in NUISANCES}
@@ -550,7 +550,7 @@ class Outcome:
     faults: tuple[str, ...] = ()
     estimates: dict[str, Combined] = field(default_factory=dict)
     standing: str | None = None  # said once: the switch cannot be commissioned as healthy, and why
-    features: dict[str, float | None] = field(default_factory=dict)  # the throw's (models/features.py)
+    features: dict[str, float | None] = field(default_factory=dict)  # the throw's (models/health/features.py)
     feature_health: list[dict] = field(default_factory=list)  # once commissioned: FeatureTrends.update's
     anomalies: list[dict] = field(default_factory=list)  # what no fault mode names (SwitchDiagnoser._anomalies)
 

@@ -1,11 +1,11 @@
 """Parameter estimation for one throw (paper, section "Fault diagnosis").
 
 A hypothesis frees some of the reduced model's parameters (faults and the switch's own
-build and weather, models/reduced.py PARAMETERS) within bounds, holds the others, and
+build and weather, models/reduced/hybrid.py PARAMETERS) within bounds, holds the others, and
 fits the model to the throw's measured current, angle and angular velocity (or the current
 alone, where a unit logs nothing else), each scaled by its range, so the cost is the mean
 squared error of the scaled signals.
-Bounded Levenberg-Marquardt (models/least_squares.py): every step from an exact Jacobian, trial
+Bounded Levenberg-Marquardt (models/numerics/least_squares.py): every step from an exact Jacobian, trial
 points judged by their residual, and at an accepted point Broyden's update of the last Jacobian
 deciding first whether the fit has converged (one that has ends on that update). Where the error
 is multimodal (a bolt offset or an obstacle position moves the instant something happens, not
@@ -23,7 +23,7 @@ through the chunks for the Jacobian.
 Standard deviations are the Gauss-Newton covariance with the residual variance, widened by
 N / N_eff: the residual of a reduced model is smooth model error, not white noise, and
 counts as N_eff independent samples (effective_samples). What the model's error does to
-an estimate beyond that is the caller's to add (models/switch_diagnosis.py).
+an estimate beyond that is the caller's to add (models/diagnosis/switch_diagnoser.py).
 
 The rail is not measured, so each throw starts from a given rail position: the end of
 the previous throw's fit, or the closed position.
@@ -37,12 +37,13 @@ from dataclasses import dataclass, field, replace
 import casadi as ca
 import numpy as np
 
-from railswitch.models.buffers import InPlace
-from railswitch.models.least_squares import levenberg_marquardt
-from railswitch.models.reduced import OUTPUTS, PARAMETERS, STATES, Compiler, ReducedSwitch, kernels, rolled
-from railswitch.models.reference import Reference
-from railswitch.models.signals import SIGNAL_NAMES as MEASURED
-from railswitch.models.signals import MotorSignals
+from railswitch.models.numerics.buffers import InPlace
+from railswitch.models.numerics.statistics import effective_samples
+from railswitch.models.numerics.least_squares import levenberg_marquardt
+from railswitch.models.reduced.hybrid import OUTPUTS, PARAMETERS, STATES, Compiler, ReducedSwitch, kernels, rolled
+from railswitch.models.plant.reference import Reference
+from railswitch.models.plant.signals import SIGNAL_NAMES as MEASURED
+from railswitch.models.plant.signals import MotorSignals
 
 # The model's grid: 10 ms, half the step the rails are trained at. On the 20 ms step itself an event (a bolt
 # taking up its play, an obstacle met) that moves across a step boundary leaves ripples in the error surface
@@ -56,7 +57,7 @@ CHUNK_SAMPLES = 100
 # smaller than that, so the grid runs the model at the step it was trained at, in half as many steps.
 GRID_RATE_HZ = 50.0
 # Grid points evaluated in one mapped call: every hypothesis's grid of a throw at once (37 points for the
-# switch's hypotheses, models/switch_diagnosis.py) and each fault mode's warm start (4). A point costs what a
+# switch's hypotheses, models/diagnosis/switch_diagnoser.py) and each fault mode's warm start (4). A point costs what a
 # rollout does whether it is used or padding, so the capacity is what a throw needs; a settled throw (below)
 # needs the bolt's mark, the obstacle's grid at its lesser friction and their warm starts (12).
 GRID_CAPACITY = 41
@@ -80,7 +81,7 @@ SCALES = {"left_bolt_offset": 0.05, "right_bolt_offset": 0.05, "bearing_friction
           "motor.supply_v": 10.0, "rail.chair_friction_coefficient": 0.01}
 # A fault's parameter whose error surface may hold more than one basin near the fit (HypothesisSpec.scanned),
 # where the solver stops in the first it meets. A bolt's did: the causal rail's, as fine-tuned before its inertia
-# was held (models/training.py), was a sawtooth with teeth a few millimetres wide that stopped a bolt well short of
+# was held (models/reduced/training.py), was a sawtooth with teeth a few millimetres wide that stopped a bolt well short of
 # its length; poly's and nn's have shallow ripples closer together, some of them lower than where the solver stops.
 # So once a scanned hypothesis fits a throw best and explains a tenth of the nominal fit's misfit (SCAN_WHEN), its
 # parameter is tried at SCAN_CAPACITY points SCAN_STEP apart around the fit, the rest held, and refitted from the
@@ -114,31 +115,6 @@ WITHOUT = "without:"
 # A bolt drives the blades in one direction only (the left bolt from left to right).
 DRIVING_BOLT = {"left_to_right": "left_bolt", "right_to_left": "right_bolt"}
 _MEASURED_ROWS = [OUTPUTS.index(name) for name in MEASURED]
-
-
-def effective_samples(residual: np.ndarray) -> float:
-    """Number of independent residuals: N / (1 + 2 sum of autocorrelations), summed over the signals.
-
-    The sum stops at the first pair of lags whose autocorrelations add up to a negative number
-    (Geyer's initial positive sequence, as in MCMC effective sample sizes). The signals' transforms are taken
-    together: rows of a contiguous array give the same numbers as one signal at a time, in one call.
-    """
-    columns = np.ascontiguousarray(np.atleast_2d(residual.T))
-    n = columns.shape[1]
-    centred = columns - columns.mean(axis=1, keepdims=True)
-    spectrum = np.fft.rfft(centred, 2 * n, axis=1)
-    total = 0.0
-    for acf in np.fft.irfft(spectrum * np.conj(spectrum), axis=1)[:, :n]:
-        if acf[0] <= 0:
-            total += n
-            continue
-        acf = acf / acf[0]
-        pairs = acf[0:n - 1:2] + acf[1:n:2]
-        negative = np.flatnonzero(pairs < 0)
-        kept = pairs[:negative[0]] if negative.size else pairs
-        tau = float(np.cumsum(np.concatenate([[-1.0], 2 * kept]))[-1])  # -1 + 2 pair + 2 pair ..., in that order
-        total += n / max(tau, 1.0)
-    return total
 
 
 @dataclass(frozen=True)

@@ -15,9 +15,9 @@ from dataclasses import dataclass
 
 import casadi as ca
 
-from railswitch.models.adjuster import AdjusterParams
-from railswitch.models.drive import DriveParams
-from railswitch.models.smooth import smooth_step, softplus
+from railswitch.models.plant.adjuster import AdjusterParams
+from railswitch.models.plant.drive import DriveParams
+from railswitch.models.numerics.smooth import smooth_step, softplus
 
 
 @dataclass(frozen=True)

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from railswitch.models.smooth import softplus
+from railswitch.models.numerics.smooth import softplus
 from railswitch.schemas.faults import RAIL_MODELS
 
 # Typical magnitudes used to scale network inputs and outputs to order one.

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import casadi as ca
 
-from railswitch.models.smooth import softplus
+from railswitch.models.numerics.smooth import softplus
 
 
 @dataclass(frozen=True)
@@ -44,7 +44,7 @@ def adjuster_force(params: AdjusterParams, rod_m, rod_velocity_m_s, adjuster_m, 
                    left_bolt_offset, right_bolt_offset, contact=unilateral_contact):
     """Force the bolts exert on the adjuster along the rod (positive pushes to the right).
 
-    All positions are rod coordinates (see models/drive.py). `contact` is the
+    All positions are rod coordinates (see models/plant/drive.py). `contact` is the
     contact law: the plant's exact one or `smooth_contact`.
     """
     left_face = rod_m - (params.free_play_m + left_bolt_offset)

@@ -15,7 +15,7 @@ throw's duration), so a throw read from MCAP, CSV or the bus has the same featur
 - energy: the current's magnitude integrated over the throw, times the supply's nominal voltage (what a monitor
   that logs the current alone reports; the supply's own voltage is not measured);
 - lock current: the mean magnitude over the stroke's part in which the crank runs into its dead centre, where the
-  end-position hook latches (models/lock.py: the last end_zone of rod travel, by the reference's angle);
+  end-position hook latches (models/plant/lock.py: the last end_zone of rod travel, by the reference's angle);
 - speed lag: how far the motor's speed fell short of its reference at most, from the start to the stroke's end (a
   unit that logs the speed only): a speed-controlled drive follows its reference unless it runs short of voltage.
 
@@ -28,15 +28,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from railswitch.models.drive import DriveParams
-from railswitch.models.lock import LockParams
-from railswitch.models.reference import DIRECTIONS, Reference
-from railswitch.models.signals import MotorSignals
+from railswitch.models.plant.drive import DriveParams
+from railswitch.models.plant.lock import LockParams
+from railswitch.models.plant.reference import DIRECTIONS, Reference
+from railswitch.models.plant.signals import MotorSignals
 from railswitch.schemas.plant import PLANT_PARAMETERS
 
 FEATURES = ("throw_time_s", "peak_current_a", "mean_current_a", "energy_j", "lock_current_a", "speed_lag_rad_s")
 TOP_SHARE = 0.95  # of the reference's top speed: the stroke
-STILL_SHARE = 0.1  # of the reference's top speed: the motor has stopped (a throw's end, and models/switch_diagnosis.py
+STILL_SHARE = 0.1  # of the reference's top speed: the motor has stopped (a throw's end, and models/diagnosis/switch_diagnoser.py
 # cut_short: a throw that ends while the motor turns faster is cut short)
 SETTLE_S = 0.1  # after the reference first reaches its top speed: the start-up surge and the speed loop's overshoot
 SUPPLY_V = PLANT_PARAMETERS["motor.supply_v"].nominal

@@ -2,11 +2,11 @@
 
 Real switches carry several faults at once, start life with conditions, degrade slowly and get repaired. So a
 switch's state is a set of confirmed faults, each with its parameters as the latest throw that saw it fitted them.
-Every throw is fitted as the switch now is (its confirmed faults free, models/switch_diagnosis.py), as the same
+Every throw is fitted as the switch now is (its confirmed faults free, models/diagnosis/switch_diagnoser.py), as the same
 plus one more fault of each mode it does not have, and as the same without each confirmed fault the throw can see;
 this module holds the set and the rules that change it:
 
-- **Add** a fault when its hypothesis beats the switch as it now is (models/isolation.py, its evidence added up
+- **Add** a fault when its hypothesis beats the switch as it now is (models/diagnosis/isolation.py, its evidence added up
   over the latest throws that could see it) and fits best of those detected. A confirmed fault is never dropped
   because a new one fits better alone: the new one is tested on top of it.
 - **Cannot tell apart**: when two detected modes fit a throw alike (isolation.separable), that direction cannot
@@ -24,8 +24,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from railswitch.models.estimation import DRIVING_BOLT
-from railswitch.models.isolation import EVIDENCE_THROWS, Evidence, accumulated
+from railswitch.models.diagnosis.estimation import DRIVING_BOLT
+from railswitch.models.diagnosis.isolation import EVIDENCE_THROWS, Evidence, accumulated
 from railswitch.schemas.faults import FAULT_PARAMETERS, MODE_PARAMETERS
 
 # Each mode's size: the parameter whose departure from its reference says how large the fault is.
