@@ -1082,7 +1082,7 @@ class SwitchDiagnoser:
                 reported[label] = self._report(direction, estimate, candidate_modes(direction))
             elif label == "nominal":
                 reported[label] = self._report(direction, estimate, base)
-                reported.update({mode: self._report(direction, estimate, (mode,), mode) for mode in base})
+                reported.update({mode: self._report(direction, estimate, (mode,), mode) for mode in sorted(base)})
             elif label.startswith(WITHOUT):
                 reported[label] = self._report(direction, estimate, (), label[len(WITHOUT):])
             else:
