@@ -32,7 +32,7 @@ def test_router_image_has_the_minor_version_of_the_zenoh_package(compose):
 def test_every_service_command_parses_in_the_cli_and_connects_to_the_router(compose, service):
     command = compose["services"][service]["command"]
     args = build_parser().parse_args(command)  # exits (fails the test) on an unknown command or option
-    assert args.command == service
+    assert (args.command, args.service) == ("serve", service)
     assert args.connect == ["tcp/router:7447"]
 
 
@@ -43,7 +43,7 @@ def test_notify_runs_on_its_profile_with_the_webhook_from_the_environment(compos
                             "https://alarms.example/railswitch") for word in service["command"]]
     assert command != service["command"]
     args = build_parser().parse_args(command)
-    assert (args.command, args.connect, args.webhook) == ("notify", ["tcp/router:7447"], "https://alarms.example/railswitch")
+    assert (args.command, args.service, args.connect, args.webhook) == ("serve", "notify", ["tcp/router:7447"], "https://alarms.example/railswitch")
 
 
 def test_recording_goes_to_a_volume(compose):

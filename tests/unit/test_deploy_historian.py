@@ -15,7 +15,7 @@ def test_the_historian_service_writes_the_postgres_services_database_and_connect
     compose = yaml.safe_load((ROOT / "docker-compose.yml").read_text())
     historian = compose["services"]["historian"]
     args = build_parser().parse_args(historian["command"])  # exits (fails the test) on an unknown option
-    assert args.command == "historian" and args.connect == ["tcp/router:7447"]
+    assert (args.command, args.service) == ("serve", "historian") and args.connect == ["tcp/router:7447"]
     target = conninfo_to_dict(args.db)
     assert args.db.startswith("postgresql://") and "password" not in target
     assert target["host"] == "postgres" and "postgres" in compose["services"]
