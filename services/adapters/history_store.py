@@ -9,10 +9,10 @@ from __future__ import annotations
 import os
 import re
 from collections.abc import Sequence
-from typing import NamedTuple
 
 from railswitch.schemas import HISTORY_KINDS
 from railswitch.schemas.history import MAX_TIME_NS
+from railswitch.services.ports import HistoryDbError, HistoryRow
 
 COLUMNS = "switch_id, kind, throw_index, t_ns, payload"
 KIND_CHECK = "CHECK (kind IN ({}))".format(", ".join(f"'{k}'" for k in HISTORY_KINDS))
@@ -25,20 +25,6 @@ HOLDS_SQL = "SELECT 1 FROM {table} WHERE switch_id = ? LIMIT 1"
 SWITCHES_SQL = "SELECT DISTINCT switch_id FROM {table}"
 COUNT_SQL = "SELECT count(*) FROM {table}"
 PRUNE_SQL = "DELETE FROM {table} WHERE switch_id = ? AND t_ns < ?"
-
-
-class HistoryRow(NamedTuple):
-    """One stored message: its switch, kind (diagnosis or health), throw, time (ns) and JSON."""
-
-    switch_id: str
-    kind: str
-    throw_index: int
-    t_ns: int
-    payload: str
-
-
-class HistoryDbError(OSError):
-    """A history database cannot be used; the message is one line."""
 
 
 class HistoryStore:

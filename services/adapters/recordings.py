@@ -10,7 +10,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import IO, NamedTuple, Self
+from typing import IO, Self
 
 from mcap.exceptions import EndOfFile, InvalidMagic, RecordLengthLimitExceeded
 from mcap.reader import NonSeekingReader, make_reader
@@ -26,6 +26,7 @@ from railswitch.schemas import (
     json_schema,
     parse_key_expr,
 )
+from railswitch.services.ports import RecordedMessage
 
 LIBRARY = "railswitch"  # fixed, so equal messages give byte-identical files
 _UINT32 = 2**32  # MCAP sequence numbers are uint32
@@ -164,16 +165,6 @@ class RecordingWriter:
         )
         self._channels[key] = (channel_id, model_cls, switch_id)
         return self._channels[key]
-
-
-class RecordedMessage(NamedTuple):
-    """One decoded message of a recording, with the channel it came from."""
-
-    key: str
-    kind: str
-    switch_id: str
-    message: Message
-    log_time_ns: int
 
 
 class RecordingReader:

@@ -11,19 +11,10 @@ import ssl
 import urllib.error
 import urllib.request
 from urllib.parse import urlsplit
+from railswitch.services.ports import DeliveryFailed
 
 RETRIED_4XX = (408, 429)  # request timeout, too many requests: the server asks to be tried again
 MAX_REPLY_BYTES = 64 << 10  # what is read of a reply before the connection is closed
-
-
-class DeliveryFailed(Exception):
-    """A POST that did not deliver; `kind` names the failure in a few words (counted and logged per kind),
-    `permanent` when trying again cannot help (the server refused the body or the URL)."""
-
-    def __init__(self, kind: str, permanent: bool = False):
-        super().__init__(kind)
-        self.kind = kind
-        self.permanent = permanent
 
 
 def check_url(url: str) -> str:

@@ -17,16 +17,13 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, NamedTuple
 
 import zenoh
 import zenoh.ext
 
 from railswitch.schemas import DEFAULT_ENDPOINT, KEY_PREFIX, SERVICE_PREFIX, Message, ServiceStatus, encode, recent_key
+from railswitch.services.ports import IntakeCounts, LiveSet, Received
 
-if TYPE_CHECKING:  # the intake module imports this one
-    from railswitch.services.core.intake import Intake
-    from railswitch.services.core.membership import Membership
 
 log = logging.getLogger("railswitch.bus")
 
@@ -171,7 +168,7 @@ class LiveSet:
     instances present at start-up and then every join and leave. The instance itself joins with joined(), once its
     token is declared; its own token seen gone is logged (cut off from the router) and does not remove it."""
 
-    def __init__(self, session: zenoh.Session, service: str, membership: Membership):
+    def __init__(self, session: zenoh.Session, service: str, membership: LiveSet):
         self.service = service
         self.membership = membership
         self.watch = LivelinessWatch(session, service)
@@ -277,14 +274,6 @@ class Publishers:
             sample_miss_detection=zenoh.ext.MissDetectionConfig(sporadic_heartbeat=HEARTBEAT_S))
 
 
-class Received(NamedTuple):
-    """One raw sample as it arrived: key, payload and local arrival time (monotonic seconds)."""
-
-    key: str
-    payload: bytes
-    arrived_s: float
-
-
 class Inbox:
     """Subscriptions whose callbacks only enqueue; the service drains the queue in its own thread.
 
@@ -349,7 +338,7 @@ class StatusReporter:
     """Publishes a ServiceStatus on railswitch/@service/<name>/<instance>/status every interval_s,
     with what the service's intake (services/core/intake.py) received, rejected and ignored (a newer publisher's)."""
 
-    def __init__(self, publishers: Publishers, service: str, intake: Intake, interval_s: float = 5.0):
+    def __init__(self, publishers: Publishers, service: str, intake: IntakeCounts, interval_s: float = 5.0):
         self.publishers = publishers
         self.service = service
         self.intake = intake

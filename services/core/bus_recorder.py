@@ -7,8 +7,7 @@ import logging
 import time
 
 from railswitch.schemas import Diagnosis, ThrowRecord
-from railswitch.services.adapters.recordings import RecordingWriter
-from railswitch.services.adapters.zenoh_bus import Received
+from railswitch.services.ports import Received, RecordingSink
 from railswitch.services.core.intake import Intake
 from railswitch.services.core.recent_throws import RecentThrows
 
@@ -19,7 +18,7 @@ class Recorder:
     """Decodes received payloads and writes the valid ones as they arrived (fields a newer publisher added
     stay in the file); counts the rest by reason."""
 
-    def __init__(self, writer: RecordingWriter, recent: RecentThrows | None = None):
+    def __init__(self, writer: RecordingSink, recent: RecentThrows | None = None):
         self.writer = writer
         self.recent = recent
         self.intake = Intake(log)

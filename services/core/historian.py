@@ -31,8 +31,7 @@ from railswitch.schemas import (
     history_key,
 )
 from railswitch.schemas.history import MAX_TIME_NS
-from railswitch.services.adapters.history_store import HistoryDbError, HistoryRow, HistoryStore
-from railswitch.services.adapters.zenoh_bus import Received
+from railswitch.services.ports import History, HistoryDbError, HistoryRow, Received
 from railswitch.services.core.intake import Intake
 from railswitch.services.core.shards import FixedShard, Ownership
 
@@ -86,7 +85,7 @@ class Historian:
     """Turns received payloads into history rows of this historian's switches and writes each batch in one
     transaction. Junk is counted per reason by the intake and never stored."""
 
-    def __init__(self, db: HistoryStore, ownership: Ownership | None = None,
+    def __init__(self, db: History, ownership: Ownership | None = None,
                  clock: Callable[[], float] = time.monotonic):
         """Without ownership every switch is this historian's."""
         self.db = db
@@ -238,7 +237,7 @@ class HistoryAnswers:
     """Answers history queries from its own connection to the store. Bad queries are counted per reason and
     logged once per reason."""
 
-    def __init__(self, db: HistoryStore, is_mine: Callable[[str], bool], historian: str):
+    def __init__(self, db: History, is_mine: Callable[[str], bool], historian: str):
         self.db = db
         self.is_mine = is_mine
         self.historian = historian

@@ -15,7 +15,7 @@ from functools import cache
 from railswitch.schemas import (CHANNEL_MODELS, Counted, Message, MessageError, MotorSample, ThrowRecord,
                                decode_counted, parse_key_expr)
 from railswitch.schemas import SERVICE_PREFIX
-from railswitch.services.adapters.zenoh_bus import Received
+from railswitch.services.ports import Received
 
 MAX_PAYLOAD_BYTES = 1 << 20  # a throw event with the longest reference profile is under 0.5 MiB
 # A record of MAX_RECORD_SAMPLES samples with three signals and the longest profile is under 2.5 MiB as JSON.

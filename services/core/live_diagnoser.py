@@ -25,7 +25,7 @@ from railswitch.schemas import (
     ThrowRecord,
     key_expr,
 )
-from railswitch.services.adapters.zenoh_bus import Publishers, Received
+from railswitch.services.ports import Publisher, Received
 from railswitch.services.core.fleet_diagnoser import DiagnosedThrow, Diagnoser, throw_end_ns
 from railswitch.services.core.handover import HeldThrow, HeldThrows, StateCache, diagnosis_key
 from railswitch.services.core.intake import Intake
@@ -50,7 +50,7 @@ Recover = Callable[[str, int], list[Received]]
 class LiveDiagnoser:
     """Feeds received samples, events and records through the throw cutter into the diagnoser."""
 
-    def __init__(self, diagnoser: Diagnoser, publishers: Publishers | None, ownership: Ownership | None = None,
+    def __init__(self, diagnoser: Diagnoser, publishers: Publisher | None, ownership: Ownership | None = None,
                  known: Callable[[str], bool] | None = None, clock: Callable[[], float] = time.monotonic,
                  recover: Recover | None = None):
         """The diagnoser's states go on the bus as well as to its own on_state (a BaselineStore on disk), and a

@@ -15,7 +15,7 @@ from collections import Counter, OrderedDict, deque
 from collections.abc import Callable
 
 from railswitch.schemas import Alarm, encode
-from railswitch.services.adapters.webhook import DeliveryFailed
+from railswitch.services.ports import DeliveryFailed
 
 log = logging.getLogger("railswitch.notify")
 

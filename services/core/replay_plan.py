@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from railswitch.schemas import Message, MotorSample
-from railswitch.services.adapters.recordings import RecordedMessage
+from railswitch.services.ports import RecordedMessage
 
 PLANT_KINDS = ("motor", "throw", "truth", "record")  # what the plant's side (or its trackside unit) sends
 
