@@ -90,7 +90,7 @@ class IntakeCounts(Protocol):
     ignored: Counter[str]
 
 
-class LiveSet(Protocol):
+class Members(Protocol):
     """The live instances of a service, kept from the bus's liveliness (core/membership.py Membership)."""
 
     me: str

@@ -22,7 +22,7 @@ import zenoh
 import zenoh.ext
 
 from railswitch.schemas import DEFAULT_ENDPOINT, KEY_PREFIX, SERVICE_PREFIX, Message, ServiceStatus, encode, recent_key
-from railswitch.services.ports import IntakeCounts, LiveSet, Received
+from railswitch.services.ports import IntakeCounts, Members, Received
 
 
 log = logging.getLogger("railswitch.bus")
@@ -168,7 +168,7 @@ class LiveSet:
     instances present at start-up and then every join and leave. The instance itself joins with joined(), once its
     token is declared; its own token seen gone is logged (cut off from the router) and does not remove it."""
 
-    def __init__(self, session: zenoh.Session, service: str, membership: LiveSet):
+    def __init__(self, session: zenoh.Session, service: str, membership: Members):
         self.service = service
         self.membership = membership
         self.watch = LivelinessWatch(session, service)

@@ -3,7 +3,7 @@ throws as whole numbers."""
 from types import SimpleNamespace
 
 from railswitch.schemas import Diagnosis, FeatureHealth, Hypothesis, ParameterHealth, SwitchHealth
-from railswitch.services.commands.report import estimates_figure, features_figure, health_figure, life_pictures
+from railswitch.services.core.pictures import estimates_figure, features_figure, health_figure, life_pictures
 from railswitch.services.core.fleet_diagnoser import DiagnosedThrow
 from railswitch.services.core.health_series import health_series
 
