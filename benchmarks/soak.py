@@ -38,7 +38,7 @@ from benchmarks.common import emit, parser
 from railswitch.schemas import Diagnosis, MotorSample, ThrowEvent, decode, parse_key_expr
 from railswitch.services.adapters.zenoh_bus import BusOptions, Inbox, open_session
 from railswitch.models.diagnosis.switch_diagnoser import COMMISSIONING_THROWS
-from railswitch.services.commands.demo import INTERVAL_S, demo_scenario
+from railswitch.services.core.demo_story import INTERVAL_S, demo_scenario
 from railswitch.services.adapters.recordings import RecordingReader
 from railswitch.services.adapters.processes import ServiceProcesses, free_loopback_endpoint, wait_ready
 

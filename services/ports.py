@@ -4,7 +4,7 @@ implement and the commands wire (docs/architecture.md)."""
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import NamedTuple, Protocol
 
 from railswitch.schemas import Message
@@ -101,3 +101,17 @@ class Members(Protocol):
     def join(self, member: str, at_s: float = ...) -> bool: ...
 
     def leave(self, member: str) -> bool: ...
+
+
+class Answered(Protocol):
+    """A history query's answer (core/historian.py Answer): one reply (key, JSON) per switch, or an error."""
+
+    replies: list[tuple[str, bytes]]
+    error: str | None
+
+
+class HistoryAnswering(Protocol):
+    """Answers history queries (core/historian.py HistoryAnswers); `matches(switch_id)`: whether that switch's
+    history key intersects the query's."""
+
+    def answer(self, key: str, parameters: Mapping[str, str], matches: Callable[[str], bool]) -> Answered: ...

@@ -20,8 +20,8 @@ from railswitch.schemas.history import format_time
 from railswitch.services.adapters.history_store import open_history
 from railswitch.services.adapters.zenoh_bus import BusError, BusOptions, open_session
 from railswitch.services.commands import options
-from railswitch.services.commands.history import ask_historians
-from railswitch.services.commands.watch import state_markup
+from railswitch.services.adapters.history_bus import ask_historians
+from railswitch.services.core.tables import state_markup
 from railswitch.services.core.fleet_view import FleetRow, fleet_rows
 from railswitch.services.core.historian import HistoryAnswers, merge_replies
 

@@ -15,15 +15,14 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
-import queue
 import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
-import zenoh
 
-from railswitch.schemas import HISTORY_KEYS, HISTORY_KINDS, history_key
+from railswitch.schemas import HISTORY_KEYS, HISTORY_KINDS
+from railswitch.services.adapters.history_bus import QueryServer
 from railswitch.services.adapters.history_store import open_history
 from railswitch.services.adapters.zenoh_bus import (
     ELASTIC_LEASE_MS,
@@ -56,55 +55,6 @@ def batches(inbox: Inbox, stop: threading.Event) -> Iterator[list[Received]]:
         while batch and len(batch) < MAX_BATCH and (item := inbox.get(0.0)) is not None:
             batch.append(item)
         yield batch
-
-
-class QueryServer:
-    """Answers history queries in a thread of its own with its own connection to the store; the queryable's
-    callback only queues the query."""
-
-    def __init__(self, session: zenoh.Session, answers: HistoryAnswers):
-        self.answers = answers
-        self._closed = threading.Event()
-        self._queries: queue.SimpleQueue[zenoh.Query] = queue.SimpleQueue()
-        self._queryable = session.declare_queryable(HISTORY_KEYS, self._queries.put)
-        self._thread = threading.Thread(target=self._serve, name="history-queries", daemon=True)
-        self._thread.start()
-
-    def _serve(self) -> None:
-        while not self._closed.is_set():
-            try:
-                query = self._queries.get(timeout=POLL_S)
-            except queue.Empty:
-                continue
-            with query:  # leaving it sends the final reply: the client's get ends
-                try:
-                    self.respond(query)
-                except zenoh.ZError as error:  # the client went away, say: the next query is answered all the same
-                    log.warning("could not answer a history query on %s: %s", query.key_expr, error)
-
-    def respond(self, query: zenoh.Query) -> None:
-        key = str(query.key_expr)
-        asked = zenoh.KeyExpr(key)
-        try:
-            answer = self.answers.answer(key, dict(query.parameters),
-                                         lambda switch_id: asked.intersects(zenoh.KeyExpr(history_key(switch_id))))
-        except OSError as error:  # the store could not be read: say so to the client, keep serving
-            log.error("%s", error)
-            query.reply_err(str(error).encode(), encoding=zenoh.Encoding.TEXT_PLAIN)
-            return
-        if answer.error is not None:
-            query.reply_err(answer.error.encode(), encoding=zenoh.Encoding.TEXT_PLAIN)
-        for reply_key, payload in answer.replies:
-            query.reply(reply_key, payload, encoding=zenoh.Encoding.APPLICATION_JSON)
-
-    def __enter__(self) -> QueryServer:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        """No new queries; the one being answered is finished first."""
-        self._queryable.undeclare()
-        self._closed.set()
-        self._thread.join()
 
 
 def counters(historian: Historian, server: QueryServer, inbox: Inbox) -> dict[str, int]:

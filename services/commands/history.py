@@ -9,27 +9,16 @@ from __future__ import annotations
 import argparse
 import sys
 
-import zenoh
 from rich.console import Console
-from rich.table import Table
 
-from railswitch.schemas import (
-    HISTORY_KINDS,
-    MAX_LIMIT,
-    Alarm,
-    Diagnosis,
-    HistoryQuery,
-    HistoryReply,
-    SwitchHealth,
-    decode,
-    history_key,
-)
-from railswitch.schemas.history import format_time, parse_time
+from railswitch.schemas import HISTORY_KINDS, MAX_LIMIT, HistoryQuery, HistoryReply, history_key
+from railswitch.schemas.history import parse_time
 from railswitch.services.adapters.history_db import salvage
 from railswitch.services.adapters.history_store import is_url, open_history
+from railswitch.services.adapters.history_bus import ask_historians
 from railswitch.services.adapters.zenoh_bus import BusError, BusOptions, open_session
 from railswitch.services.commands import options
-from railswitch.services.commands.watch import DECISION_STYLE, key_estimates, state_markup, to_limit
+from railswitch.services.core.tables import alarm_table, history_table, messages_in_order
 from railswitch.services.core.historian import HistoryAnswers, merge_replies
 
 DEFAULT_LIMIT = 100  # throws shown unless --limit says otherwise
@@ -37,20 +26,6 @@ DEFAULT_LIMIT = 100  # throws shown unless --limit says otherwise
 
 class HistoryError(RuntimeError):
     """No history could be had (the historians refused or did not answer); the message is one line."""
-
-
-def ask_historians(session: zenoh.Session, key: str, query: HistoryQuery,
-                   timeout_s: float) -> tuple[list[HistoryReply], list[str]]:
-    """Every historian's replies to a query on key (consolidation off: every reply comes back), and the error
-    replies' texts."""
-    found, errors = [], []
-    for reply in session.get(f"{key}?{query.parameters()}", target=zenoh.QueryTarget.ALL,
-                             consolidation=zenoh.ConsolidationMode.NONE, timeout=timeout_s):
-        if reply.ok is not None:
-            found.append(decode(HistoryReply, reply.ok.payload.to_bytes()))
-        else:
-            errors.append(reply.err.payload.to_string())
-    return found, errors
 
 
 def from_bus(bus: BusOptions, switch_id: str, query: HistoryQuery, timeout_s: float) -> HistoryReply:
@@ -74,50 +49,6 @@ def from_file(path: str, switch_id: str, query: HistoryQuery) -> HistoryReply:
     if answer.error is not None:
         raise HistoryError(f"{db.name}: {answer.error}")
     return answer.decoded()[0]
-
-
-def messages_in_order(reply: HistoryReply) -> list[Diagnosis | SwitchHealth | Alarm]:
-    """Diagnoses, health messages and alarm changes by time; a throw's diagnosis before its health, then the alarm
-    changes it made in their order."""
-    keyed = [((d.t_end_ns, d.throw_index, 0), d) for d in reply.diagnoses]
-    keyed += [((h.t_ns, h.throw_index, 1), h) for h in reply.health]
-    keyed += [((a.t_ns, a.last_throw, 2, a.sequence), a) for a in reply.alarms]
-    return [message for _, message in sorted(keyed, key=lambda pair: pair[0])]
-
-
-def history_table(reply: HistoryReply) -> Table:
-    """One row per throw: its end, decision and estimates, and the switch's health after it."""
-    table = Table(title=f"history of {reply.switch_id}", expand=False)
-    for column in ("end (UTC)", "throw", "direction", "decision", "key estimates", "health", "worst: throws to limit"):
-        table.add_column(column, justify="right" if column == "throw" else "left")
-    rows: dict[tuple[int, int], list[str]] = {}
-    for message in messages_in_order(reply):
-        if isinstance(message, Alarm):
-            continue  # in their own table
-        if isinstance(message, Diagnosis):
-            style = DECISION_STYLE.get(message.decision, "bold red")
-            rows[message.t_end_ns, message.throw_index] = [
-                format_time(message.t_end_ns), str(message.throw_index), message.direction,
-                f"[{style}]{message.decision}[/]", key_estimates(message), "", ""]
-        else:
-            row = rows.setdefault((message.t_ns, message.throw_index),
-                                  [format_time(message.t_ns), str(message.throw_index), "", "", "", "", ""])
-            row[5:] = [state_markup(message.state), to_limit(message)]
-    for row in rows.values():
-        table.add_row(*row)
-    return table
-
-
-def alarm_table(reply: HistoryReply) -> Table:
-    """One row per alarm change: when, which alarm, what changed, its severity, throws and text."""
-    table = Table(title=f"alarm changes of {reply.switch_id}", expand=False)
-    for column in ("time (UTC)", "alarm", "change", "severity", "throws", "text"):
-        table.add_column(column)
-    for alarm in reply.alarms:
-        note = f" ({alarm.note})" if alarm.note else ""
-        table.add_row(format_time(alarm.t_ns), alarm.alarm, alarm.change, alarm.severity,
-                      f"{alarm.first_throw}–{alarm.last_throw} ({alarm.count})", alarm.text + note)
-    return table
 
 
 def show(reply: HistoryReply, as_json: bool) -> None:

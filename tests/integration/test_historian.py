@@ -338,7 +338,7 @@ def test_a_damaged_file_stops_the_historian_in_one_line_with_the_rows_that_salva
     (["history", "not a switch!"], "must be 1 to 64 letters"),
     (["history", "sw1", "--db", "missing.sqlite"], "history database missing.sqlite does not exist"),
     (["history", "--salvage", "new.sqlite"], "--salvage needs --db"),
-    (["report", "--out", "pictures"], "give a recording (F.mcap) or a history file (--db F.sqlite)"),
+    (["report", "--out", "pictures"], "give a recording (F.mcap or F.csv) or a history store (--db F.sqlite or --db postgresql://…)"),
 ])
 def test_bad_historian_and_history_values_give_one_line_and_exit_2(tmp_path, args, words):
     with sqlite3.connect(tmp_path / "other.sqlite") as other:
