@@ -24,7 +24,8 @@ from railswitch.models.plant.simulation import SwitchSimulation
 from railswitch.schemas import CHANNEL_MODELS, HISTORY_KINDS, Message, decode
 from railswitch.services.adapters.history_store import open_history
 from railswitch.services.adapters.csv_throws import load_throws, logged_record
-from railswitch.services.core.fleet_diagnoser import DiagnosedThrow, Diagnoser
+from railswitch.services.core.fleet_diagnoser import DiagnosedThrow
+from railswitch.services.wiring import Diagnoser
 from railswitch.services.core.records import every_throw, throw_of_record
 from railswitch.services.core.switch_messages import SimulatedThrows
 from railswitch.services.core.throw_cutter import CutThrow as Throw

@@ -42,7 +42,7 @@ from railswitch.models.diagnosis.switch_diagnoser import COMMISSIONING_THROWS
 from railswitch.schemas import RAIL_MODELS
 from railswitch.schemas.faults import FAULT_MODES
 from railswitch.services.adapters.compiled import compiled_plant
-from railswitch.services.core.fleet_diagnoser import Diagnoser
+from railswitch.services.wiring import Diagnoser
 from railswitch.services.core.switch_messages import SimulatedThrows
 
 MAGNITUDE = {"left_bolt": "left_bolt_offset", "right_bolt": "right_bolt_offset", "missing_bearing": "bearing_friction",

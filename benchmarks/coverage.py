@@ -19,7 +19,7 @@ from railswitch.models.plant.simulation import SwitchSimulation
 from railswitch.schemas import RAIL_MODELS
 from railswitch.services.adapters.compiled import compiled_plant
 from railswitch.services.core.calibration import FAULTY_THROWS, NOISE, changed_weather, fault_cases
-from railswitch.services.core.fleet_diagnoser import Diagnoser
+from railswitch.services.wiring import Diagnoser
 from railswitch.services.core.switch_messages import SimulatedThrows
 
 FIRST_SEED = 700_000  # apart from the calibration's (500 000 on), the fleet's and the tests'

@@ -41,7 +41,8 @@ from railswitch.schemas import RAIL_MODELS, Diagnosis
 from railswitch.services.adapters.recordings import load_recording
 from railswitch.models.diagnosis.switch_diagnoser import COMMISSIONING_THROWS
 from railswitch.services.adapters.compiled import compiled_plant
-from railswitch.services.core.fleet_diagnoser import Diagnoser, diagnose_messages, throw_input
+from railswitch.services.core.fleet_diagnoser import diagnose_messages, throw_input
+from railswitch.services.wiring import Diagnoser
 from railswitch.services.core.throw_cutter import CutThrow
 from railswitch.services.core.switch_messages import SimulatedThrows
 

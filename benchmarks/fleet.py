@@ -37,7 +37,7 @@ from railswitch.models.plant.simulation import SwitchSimulation
 from railswitch.schemas import RAIL_MODELS, Diagnosis
 from railswitch.services.adapters.compiled import compiled_plant
 from railswitch.services.core.calibration import fault_cases
-from railswitch.services.core.fleet_diagnoser import Diagnoser
+from railswitch.services.wiring import Diagnoser
 from railswitch.services.core.switch_messages import SimulatedThrows
 
 MAGNITUDE = {"left_bolt": "left_bolt_offset", "right_bolt": "right_bolt_offset", "missing_bearing": "bearing_friction",

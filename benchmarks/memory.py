@@ -38,7 +38,7 @@ from railswitch.models.plant.simulation import SwitchSimulation
 from railswitch.models.diagnosis.switch_diagnoser import COMMISSIONING_THROWS
 from railswitch.schemas import RAIL_MODELS, SwitchState, decode, encode
 from railswitch.services.adapters.compiled import compiled_plant
-from railswitch.services.core.fleet_diagnoser import Diagnoser
+from railswitch.services.wiring import Diagnoser
 from railswitch.services.core.handover import StateCache
 from railswitch.services.core.switch_messages import SimulatedThrows
 

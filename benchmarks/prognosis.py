@@ -35,7 +35,7 @@ from railswitch.models.plant.simulation import SwitchSimulation
 from railswitch.models.diagnosis.switch_diagnoser import COMMISSIONING_THROWS
 from railswitch.schemas import RAIL_MODELS
 from railswitch.services.adapters.compiled import compiled_plant
-from railswitch.services.core.fleet_diagnoser import Diagnoser
+from railswitch.services.wiring import Diagnoser
 from railswitch.services.core.switch_messages import SimulatedThrows
 
 KINDS = ("bearing_friction", "left_bolt_offset", "right_bolt_offset", "drive_friction_nm")

@@ -45,7 +45,7 @@ from railswitch.models.reduced.validation import (  # noqa: E402
 from railswitch.schemas import RAIL_MODELS  # noqa: E402
 from railswitch.services.adapters import model_store  # noqa: E402
 from railswitch.services.adapters.compiled import MachineCode, compiled_plant  # noqa: E402
-from railswitch.services.core.model_maintenance import reproducible_training  # noqa: E402
+from railswitch.services.model_jobs import reproducible_training  # noqa: E402
 
 SAMPLES = int(THROW_DURATION_S * RATE_HZ)
 

@@ -5,7 +5,10 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
-from typing import NamedTuple, Protocol
+from pathlib import Path
+from typing import Any, NamedTuple, Protocol
+
+import numpy as np
 
 from railswitch.schemas import Message
 
@@ -115,3 +118,22 @@ class HistoryAnswering(Protocol):
     history key intersects the query's."""
 
     def answer(self, key: str, parameters: Mapping[str, str], matches: Callable[[str], bool]) -> Answered: ...
+
+
+class StoredRail(Protocol):
+    """A reduced model's stored document as the diagnosis reads it (model_store.StoredModel)."""
+
+    representation: Any  # models/reduced/rail_models.py Representation
+    weights: np.ndarray
+    bearing_port: dict
+    healthy_gains: dict
+    error_model: dict
+    model_weight: float
+    healthy_check: dict
+    path: Path
+
+
+class ModelSource(Protocol):
+    """Where the reduced models' documents come from (the module services/adapters/model_store.py is one)."""
+
+    def load(self, name: str) -> StoredRail: ...

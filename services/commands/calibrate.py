@@ -10,7 +10,7 @@ import sys
 from railswitch.models.plant.reference import DIRECTIONS
 from railswitch.schemas.faults import FAULT_PARAMETERS
 from railswitch.services.commands.options import add_model_argument, fail, models_named
-from railswitch.services.core.model_maintenance import CheckFailed, calibrate_and_save, check_summary
+from railswitch.services.model_jobs import CheckFailed, calibrate_and_save, check_summary
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

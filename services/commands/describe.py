@@ -5,7 +5,7 @@ import argparse
 import json
 
 from railswitch.services.adapters.compiled import compiled_plant
-from railswitch.services.core.model_maintenance import describe_reduced
+from railswitch.services.model_jobs import describe_reduced
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -10,7 +10,8 @@ from rich.progress import Progress
 from rich.table import Table
 
 from railswitch.schemas import ThrowEvent, ThrowRecord, encode
-from railswitch.services.core.fleet_diagnoser import DiagnosedThrow, Diagnoser, diagnose_messages
+from railswitch.services.core.fleet_diagnoser import DiagnosedThrow, diagnose_messages
+from railswitch.services.wiring import Diagnoser
 from railswitch.services.adapters.csv_throws import CsvInputError, load_throws
 from railswitch.services.commands.options import add_model_argument
 

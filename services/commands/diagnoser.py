@@ -35,7 +35,7 @@ from railswitch.services.adapters.zenoh_bus import (
     recent_throws,
 )
 from railswitch.services.commands.options import add_model_argument, add_service_arguments, bounded, run_service, shard
-from railswitch.services.core.fleet_diagnoser import Diagnoser
+from railswitch.services.wiring import Diagnoser
 from railswitch.services.core.live_diagnoser import LiveDiagnoser
 from railswitch.services.core.membership import Membership
 from railswitch.services.core.shards import FixedShard

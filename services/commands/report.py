@@ -18,7 +18,8 @@ from railswitch.schemas import MAX_LIMIT, HistoryQuery, Message, SwitchHealth
 from railswitch.services.adapters.csv_throws import load_throws as load_file
 from railswitch.services.adapters.history_store import open_history
 from railswitch.services.commands.options import add_model_argument, fail
-from railswitch.services.core.fleet_diagnoser import DiagnosedThrow, Diagnoser, diagnose_messages
+from railswitch.services.core.fleet_diagnoser import DiagnosedThrow, diagnose_messages
+from railswitch.services.wiring import Diagnoser
 from railswitch.services.core.historian import HistoryAnswers
 from railswitch.services.core.pictures import life_pictures, throw_label, throw_picture
 from railswitch.services.core.records import every_throw

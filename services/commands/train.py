@@ -7,7 +7,7 @@ from pathlib import Path
 
 from railswitch.models.reduced.training import STAGE_ITERATIONS
 from railswitch.services.commands.options import add_model_argument, bounded, fail, models_named
-from railswitch.services.core.model_maintenance import train_and_save
+from railswitch.services.model_jobs import train_and_save
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

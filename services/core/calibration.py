@@ -41,7 +41,7 @@ from railswitch.models.diagnosis.estimation import HypothesisSpec
 from railswitch.models.diagnosis.isolation import healthy_gains
 from railswitch.models.plant.high_fidelity import Plant
 from railswitch.models.plant.population import NOMINAL, draw_switch, spread
-from railswitch.models.reduced.hybrid import NEUTRAL_PORT
+from railswitch.models.reduced.hybrid import NEUTRAL_PORT, Compiler
 from railswitch.models.plant.reference import DIRECTIONS
 from railswitch.models.plant.simulation import SwitchSimulation
 from railswitch.models.diagnosis.switch_diagnoser import (
@@ -55,9 +55,9 @@ from railswitch.models.diagnosis.switch_diagnoser import (
     population,
 )
 from railswitch.schemas.faults import FAULT_PARAMETERS, MODE_PARAMETERS
-from railswitch.services.adapters.compiled import compiled_plant
 from railswitch.services.core.fleet_diagnoser import Diagnoser, throw_input
 from railswitch.services.core.switch_messages import SimulatedThrows
+from railswitch.services.ports import ModelSource
 
 CALIBRATION_BEARINGS = (2000.0, 3500.0, 8000.0)  # N·s/m; the paper's 5000 stays out, to validate on
 FIRST_SEED = 500_000  # switches of the calibration: apart from every benchmark's and test's
@@ -292,13 +292,14 @@ def error_envelope(cases: np.ndarray, relative: bool) -> tuple[float, float]:
     return best[1], best[2]
 
 
-def calibrate(name: str, plant: Plant | None = None, progress: Progress | None = None) -> dict:
-    """The calibration document of a rail model: port, priors' weight, healthy gains, error model."""
-    plant = plant or compiled_plant()
-    port = bearing_port(Diagnoser(name, port=NEUTRAL_PORT), plant)
+def calibrate(name: str, plant: Plant, models: ModelSource, machine_code: Callable[[], Compiler] | None,
+              progress: Progress | None = None) -> dict:
+    """The calibration document of a rail model (loaded from `models`, made machine code by `machine_code`) against
+    `plant`: port, priors' weight, healthy gains, error model."""
+    port = bearing_port(Diagnoser(name, port=NEUTRAL_PORT, models=models, machine_code=machine_code), plant)
     if progress:
         progress("bearing port")
-    diagnoser = Diagnoser(name, port={d: port[d] for d in DIRECTIONS})
+    diagnoser = Diagnoser(name, port={d: port[d] for d in DIRECTIONS}, models=models, machine_code=machine_code)
     weight, gains = healthy_statistics(diagnoser, plant, progress=progress)
     errors = estimate_errors(diagnoser, plant, weight, gains, progress=progress)
     prior = population(gains, weight)

@@ -16,7 +16,7 @@ import numpy as np
 
 from railswitch.models.health.alarms import AlarmBook, Change, Condition
 from railswitch.models.diagnosis.estimation import MODEL_RATE_HZ, WITHOUT, ThrowEstimator
-from railswitch.models.reduced.hybrid import BearingPort, ReducedParams, ReducedSwitch, port_pairs
+from railswitch.models.reduced.hybrid import BearingPort, Compiler, ReducedParams, ReducedSwitch, port_pairs
 from railswitch.models.plant.reference import Reference
 from railswitch.models.plant.simulation import SwitchSimulation
 from railswitch.models.diagnosis.switch_diagnoser import (
@@ -46,8 +46,7 @@ from railswitch.schemas import (
     ParameterHealth,
     SwitchHealth,
 )
-from railswitch.services.adapters import model_store
-from railswitch.services.adapters.compiled import MachineCode
+from railswitch.services.ports import ModelSource
 from railswitch.services.core.switch_messages import switch_messages
 from railswitch.services.core.records import every_throw
 from railswitch.services.core.throw_cutter import CutThrow
@@ -81,6 +80,10 @@ class Diagnoser:
     books: dict[str, AlarmBook] = field(default_factory=dict)  # per switch: its open alarms, kept in its state
     maintenance: dict[str, dict] = field(default_factory=dict)  # switches in maintenance: since when, why
     lean: bool = False  # keep about half as much per switch, for a little more time per throw (SwitchDiagnoser)
+    # Where the model comes from, and what makes it machine code (None: interpreted): services/wiring.py's
+    # Diagnoser gives the stored models and the per-machine compiler cache.
+    models: ModelSource | None = None
+    machine_code: Callable[[], Compiler] | None = None
 
     def __post_init__(self) -> None:
         if self.model not in RAIL_MODELS:
@@ -93,14 +96,17 @@ class Diagnoser:
     def estimator(self) -> ThrowEstimator:
         """The estimator, built (and compiled, once per machine: services/adapters/compiled.py) on first use."""
         if self._estimator is None:
-            stored = model_store.load(self.model)
+            if self.models is None:
+                raise RuntimeError("a Diagnoser needs its models' source (services/wiring.py Diagnoser gives the "
+                                   "stored ones)")
+            stored = self.models.load(self.model)
             if not stored.healthy_check.get("passed", True):
                 log.warning("model %s (%s) failed its check on held-out healthy switches: %s false alarms per 1000 "
                             "throws (limit %s); expect false alarms", self.model, stored.path,
                             stored.healthy_check.get("per_1000_throws"), stored.healthy_check.get("limit_per_1000_throws"))
             params = ReducedParams(bearing_port=port_pairs(self.port or stored.bearing_port))
             reduced = ReducedSwitch(stored.representation, stored.weights, params, rate_hz=MODEL_RATE_HZ)
-            self._machine_code = MachineCode() if self.compiled else None
+            self._machine_code = self.machine_code() if self.compiled and self.machine_code else None
             self._estimator = ThrowEstimator(reduced, self._machine_code)
             self._prior = population(stored.healthy_gains, stored.model_weight)
             self._errors = ErrorModel(**stored.error_model)

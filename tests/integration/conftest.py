@@ -1,7 +1,7 @@
 """Fixtures of the integration tests."""
 import pytest
 
-from railswitch.services.core.fleet_diagnoser import Diagnoser
+from railswitch.services.wiring import Diagnoser
 
 
 @pytest.fixture(scope="module")

@@ -125,7 +125,7 @@ def test_an_accept_command_on_the_bus_takes_the_switch_as_it_is_and_a_restarted_
     from railswitch.schemas import CommissionCommand, encode, key_expr
     from railswitch.services.adapters.baseline_store import BaselineStore
     from railswitch.services.adapters.zenoh_bus import Received
-    from railswitch.services.core.fleet_diagnoser import Diagnoser
+    from railswitch.services.wiring import Diagnoser
     from railswitch.services.core.live_diagnoser import LiveDiagnoser
 
     def diagnoser_with_store():

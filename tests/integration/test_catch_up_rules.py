@@ -9,7 +9,7 @@ import pytest
 from railswitch.schemas import MotorSample, ThrowEvent, ThrowRecord, encode, key_expr
 from railswitch.services.adapters.baseline_store import BaselineStore
 from railswitch.services.adapters.zenoh_bus import Received
-from railswitch.services.core.fleet_diagnoser import Diagnoser
+from railswitch.services.wiring import Diagnoser
 from railswitch.services.core.live_diagnoser import LiveDiagnoser
 from railswitch.services.core.recent_throws import RecentThrows
 from tests.live import RecordSource

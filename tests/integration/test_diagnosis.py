@@ -16,7 +16,8 @@ from railswitch.models.plant.simulation import SwitchSimulation
 from railswitch.schemas import Diagnosis, MotorSample, ThrowEvent, decode
 from railswitch.schemas.faults import FAULT_PARAMETERS
 from railswitch.services.adapters.recordings import load_recording
-from railswitch.services.core.fleet_diagnoser import Diagnoser, diagnose_messages, diagnose_simulation
+from railswitch.services.core.fleet_diagnoser import diagnose_messages, diagnose_simulation
+from railswitch.services.wiring import Diagnoser
 from railswitch.services.core.throw_cutter import cut_throws
 
 RECORDINGS = Path(__file__).resolve().parents[2] / "recordings"

@@ -11,7 +11,7 @@ from railswitch.models.plant.population import draw_switch
 from railswitch.models.plant.simulation import SwitchSimulation
 from railswitch.models.diagnosis.switch_diagnoser import COMMISSIONING_THROWS
 from railswitch.services.adapters.baseline_store import BaselineStore
-from railswitch.services.core.fleet_diagnoser import Diagnoser
+from railswitch.services.wiring import Diagnoser
 from railswitch.services.core.switch_messages import SimulatedThrows
 
 COMMISSIONED = 2 * COMMISSIONING_THROWS

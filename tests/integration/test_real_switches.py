@@ -8,7 +8,7 @@ from railswitch.models.diagnosis.switch_diagnoser import COMMISSIONING_THROWS
 from railswitch.schemas import CommissionCommand, encode, key_expr
 from railswitch.services.adapters.baseline_store import BaselineStore
 from railswitch.services.adapters.zenoh_bus import Received
-from railswitch.services.core.fleet_diagnoser import Diagnoser
+from railswitch.services.wiring import Diagnoser
 from railswitch.services.core.live_diagnoser import LiveDiagnoser
 from railswitch.services.core.switch_messages import SimulatedThrows
 

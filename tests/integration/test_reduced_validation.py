@@ -29,7 +29,7 @@ def test_poly_training_on_a_small_data_set_converges_and_is_deterministic_on_any
 TRAIN_ELSEWHERE = """
 import json, sys
 from railswitch.models.reduced.rail_models import REPRESENTATIONS
-from railswitch.services.core.model_maintenance import reproducible_training
+from railswitch.services.model_jobs import reproducible_training
 trained = reproducible_training(REPRESENTATIONS["poly"], series_seeds=(5,), threads=int(sys.argv[1]))
 print(json.dumps(trained.weights.tolist()))
 """

@@ -213,7 +213,7 @@ def test_the_switch_stage_of_training_has_the_jacobian_of_the_rollout_in_the_wei
 
 
 def test_describe_lists_each_reduced_model_with_states_parameters_and_equations():
-    from railswitch.services.core.model_maintenance import describe_reduced
+    from railswitch.services.model_jobs import describe_reduced
 
     described = describe_reduced()
     assert set(described) == set(MODELS)

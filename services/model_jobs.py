@@ -1,5 +1,6 @@
-"""Training, calibrating and describing the reduced rail models: the jobs around models/reduced/training.py,
-reading and writing their documents through services/adapters/model_store.py."""
+"""Training, calibrating and describing the reduced rail models: the jobs around models/reduced/training.py and
+services/core/calibration.py, reading and writing their documents through services/adapters/model_store.py (a
+job wires both sides, as services/wiring.py does, so it lives beside it, not in the core)."""
 from __future__ import annotations
 
 import os
@@ -17,7 +18,7 @@ from railswitch.models.reduced.validation import quick_validation
 from railswitch.services.adapters import model_store
 from railswitch.services.adapters.compiled import MachineCode, compiled_plant
 from railswitch.services.core.calibration import calibrate, healthy_check
-from railswitch.services.core.fleet_diagnoser import Diagnoser
+from railswitch.services.wiring import Diagnoser
 
 
 def train_and_save(name: str, *, seed: int = 0, iterations: int = STAGE_ITERATIONS, out_dir: str | None = None,
@@ -78,7 +79,7 @@ def calibrate_and_save(name: str, *, replace_shipped: bool = False, check_only: 
             check = healthy_check(diagnoser.switch, compiled_plant(), progress=report)
             found = {"calibration": {**document.get("calibration", {}), "healthy_check": check}}
         else:
-            found = calibrate(name, progress=report)
+            found = calibrate(name, compiled_plant(), model_store, MachineCode, progress=report)
     if replace_shipped and not found["calibration"]["healthy_check"]["passed"]:
         raise CheckFailed(check_summary(found["calibration"]["healthy_check"]) + "; the shipped model is left as it was")
     document.update(found)
