@@ -133,6 +133,21 @@ class ServiceWatch:
                         None)
 
 
+    def drained(self, instance: str, timeout_s: float = 30.0, what: str = "") -> None:
+        """Until two consecutive statuses of the instance, both arriving after now, count the same payloads
+        received. A service publishes its status from its loop, which takes a queued payload whenever there is one:
+        a loop that took none between two statuses found its queue empty, so everything sent to it before had been
+        handled (written, stored, diagnosed) or refused."""
+        since = time.monotonic()
+
+        def quiet() -> bool:
+            with self._lock:
+                counts = [s.received for t, s in self.statuses if t > since and s.instance == instance]
+            return any(a == b for a, b in zip(counts, counts[1:]))
+
+        wait_for(quiet, timeout_s, what or f"{instance} to handle everything it was sent")
+
+
 class RecordSource:
     """The complete throws of a recording as ThrowRecords of any switch: each switch's throws go on in the
     recording's order (directions alternating), 10 s apart from a common start, indexed 0, 1, … per switch."""

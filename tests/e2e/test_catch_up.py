@@ -77,7 +77,8 @@ def test_the_only_diagnoser_killed_and_restarted_diagnoses_every_throw_and_histo
     with live_bus(tmp_path) as (services, endpoint, session, collector):
         records = RecordTimes(session)
         services.start("diagnoser", "--connect", endpoint, "--status-interval", "0.5")
-        services.start("historian", "--connect", endpoint, "--db", str(db))
+        historians = ServiceWatch(session, "historian")
+        historian = services.start("historian", "--connect", endpoint, "--db", str(db), "--status-interval", "0.5")
         wait_ready(session, services, diagnoser=1, historian=1)
         simulator = services.start("simulator", *simulator_args(endpoint))
         wait_for(lambda: len(collector.received) >= 2 * len(SWITCHES), 120, "the first throws' diagnoses")
@@ -85,7 +86,7 @@ def test_the_only_diagnoser_killed_and_restarted_diagnoses_every_throw_and_histo
         assert simulator.wait(120) == 0, services.log(simulator)
         wait_for(lambda: set(collector.decisions()) >= everything, 120, "a diagnosis of every throw")
         wait_for(lambda: len(stored_diagnoses(db)) >= len(everything), 60, "every diagnosis in the history")
-        time.sleep(1.0)  # anything stored twice would be by now
+        historians.drained(instance_of(historian))  # so anything stored twice would be by now
     assert len(while_down) >= len(SWITCHES), "no throw ended while the diagnoser was down: the test shows nothing"
     assert set(collector.decisions()) == everything
     stored = stored_diagnoses(db)
@@ -113,7 +114,7 @@ def test_a_sample_stream_s_throws_that_ended_while_the_only_diagnoser_was_down_c
             raise AssertionError(f"{error}: not diagnosed {sorted(everything - set(collector.decisions()))}; "
                                  f"{services.log(second)[-3000:]}") from None
         counters = watch.latest(instance_of(second)).counters
-        time.sleep(1.0)  # anything diagnosed twice would be by now
+        watch.drained(instance_of(second))  # so anything diagnosed twice would be by now
         counts = collector.counts()
     assert len(while_down) >= len(SWITCHES), "no throw ended while the diagnoser was down: the test shows nothing"
     # those that ended before the new one subscribed came from the recorder (while_down runs on until it was ready)

@@ -25,8 +25,10 @@ from tests.live import (
     ROOT,
     DiagnosisCollector,
     ServiceProcesses,
+    ServiceWatch,
     ThrowWatcher,
     client,
+    instance_of,
     live_bus,
     throw_event,
     wait_for,
@@ -69,6 +71,7 @@ def test_junk_on_every_key_is_counted_and_the_valid_stream_still_diagnosed(tmp_p
     with live_bus(tmp_path) as (services, endpoint, session, collector):
         session.declare_subscriber("railswitch/@service/*/*/status", lambda s: statuses.__setitem__(
             str(s.key_expr).split("/")[2], decode(ServiceStatus, s.payload.to_bytes())))
+        watches = {name: ServiceWatch(session, name) for name in ("diagnoser", "recorder")}
         diagnoser = services.start("diagnoser", "--connect", endpoint, "--status-interval", "0.5")
         recorder = services.start("recorder", "--connect", endpoint, "--out", str(recording), "--status-interval",
                                   "0.5")
@@ -84,7 +87,8 @@ def test_junk_on_every_key_is_counted_and_the_valid_stream_still_diagnosed(tmp_p
             time.sleep(0.3)
         assert simulator.returncode == 0, services.log(simulator)
         wait_for(lambda: len(collector.received) >= 4, 60, "four diagnoses")
-        time.sleep(1.5)  # a status after the last junk
+        for name, process in (("diagnoser", diagnoser), ("recorder", recorder)):
+            watches[name].drained(instance_of(process))  # its status after the last junk
         assert diagnoser.poll() is None and recorder.poll() is None
         logs = {"diagnoser": services.log(diagnoser), "recorder": services.log(recorder)}
     decisions = {d.throw_index: d.decision for d in collector.received if d.switch_id == "sw1"}
@@ -137,7 +141,9 @@ def test_services_reconnect_after_a_router_restart_and_the_recording_shows_a_bou
         try:
             collector = DiagnosisCollector(session)
             services.start("diagnoser", "--connect", endpoint)
-            recorder = services.start("recorder", "--connect", endpoint, "--out", str(recording))
+            recorders = ServiceWatch(session, "recorder")
+            recorder = services.start("recorder", "--connect", endpoint, "--out", str(recording), "--status-interval",
+                                      "0.5")
             wait_ready(session, services, diagnoser=1, recorder=1)
             simulator = services.start("simulator", "--connect", endpoint, "--switch-id", "sw1", "--throws", "6",
                                        "--speed", "2", "--fault", "left_bolt_offset=0.05")
@@ -147,7 +153,7 @@ def test_services_reconnect_after_a_router_restart_and_the_recording_shows_a_bou
             services.start("router", "--listen", endpoint)
             assert simulator.wait(120) == 0
             wait_for(lambda: any(d.throw_index >= 4 for d in collector.received), 60, "diagnoses after the restart")
-            time.sleep(1.0)
+            recorders.drained(instance_of(recorder))  # it has the last diagnoses too
             assert services.stop(recorder) == 0
         finally:
             session.close()

@@ -19,7 +19,9 @@ from tests.live import (
     ROOT,
     DiagnosisCollector,
     ServiceProcesses,
+    ServiceWatch,
     client,
+    instance_of,
     jsonl_decisions,
     live_bus,
     wait_for,
@@ -59,13 +61,14 @@ def live_run(tmp_path_factory) -> LiveRun:
     recording = work / "live.mcap"
     with live_bus(work) as (services, endpoint, session, collector):
         services.start("diagnoser", "--connect", endpoint)
-        recorder = services.start("recorder", "--connect", endpoint, "--out", str(recording))
+        recorders = ServiceWatch(session, "recorder")
+        recorder = services.start("recorder", "--connect", endpoint, "--out", str(recording), "--status-interval", "0.5")
         watch = services.start("watch", "--connect", endpoint, "--jsonl", "--count", "6")
         wait_ready(session, services, diagnoser=1, recorder=1)
         simulator = services.start("simulator", "--connect", endpoint, "--scenario", str(scenario), "--speed", SPEED)
         assert simulator.wait(120) == 0, services.log(simulator)
         wait_for(lambda: len(collector.received) >= 6, 60, "six diagnoses")
-        time.sleep(0.5)  # the recorder takes the last diagnoses off the bus too
+        recorders.drained(instance_of(recorder))  # the recorder takes the last diagnoses off the bus too
         recorder.send_signal(signal.SIGTERM)
         recorder_exit = recorder.wait(30)
         watch.wait(30)
