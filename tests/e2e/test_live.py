@@ -6,7 +6,6 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -135,8 +134,9 @@ def test_fault_command_changes_the_next_throws_diagnosis(tmp_path):
     """Also: services started before their router wait for it."""
     with ServiceProcesses(tmp_path) as services:
         endpoint = free_loopback_endpoint()
-        services.start("diagnoser", "--connect", endpoint)
-        time.sleep(3.0)  # the diagnoser is retrying by now
+        early = services.start("diagnoser", "--connect", endpoint)
+        wait_for(lambda: "waiting for the bus" in services.log(early), 60, "the diagnoser to wait for its router",
+                 abort=lambda: services.log(early, 8) if early.poll() is not None else None)
         services.start("router", "--listen", endpoint)
         session = client(endpoint)
         try:
