@@ -299,8 +299,8 @@ class Baseline:
     marks: dict[str, float] = field(default_factory=dict)
     accepted: dict[str, dict[str, float]] = field(default_factory=dict)
     # Its summaries (level, gains, model_weight), by what they summarise and how many healthy throws there were: a
-    # commissioned switch's never change, and every throw's hypotheses read them some 24 times (1 ms of a settled
-    # throw's 30). Healthy throws are only ever appended (add), so the count names the throws summarised.
+    # commissioned switch's never change, and every throw's hypotheses read them some 24 times (a noticeable share of
+    # a settled throw's time). Healthy throws are only ever appended (add), so the count names the throws summarised.
     _summaries: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def _summary(self, key: tuple, throws: int, compute: Callable[[], object]):
