@@ -53,8 +53,8 @@ def interpolated(command: list[str]) -> list[str]:
     return [re.sub(r"\$\{(\w+):\?[^}]*\}", lambda m: EXAMPLE_ENV[m.group(1)], word) for word in command]
 
 
-def test_compose_runs_router_simulator_diagnoser_recorder_historian_and_notify(compose):
-    assert set(compose["services"]) == {"router", *SERVICES}
+def test_compose_runs_router_simulator_diagnoser_recorder_historian_notify_and_the_history_database(compose):
+    assert set(compose["services"]) == {"router", "postgres", *SERVICES}
 
 
 def test_router_image_has_the_minor_version_of_the_zenoh_package(compose):
