@@ -74,7 +74,10 @@ def test_elastic_historians_split_the_fleet_take_a_newcomers_share_and_write_a_h
     then killed loses no row published meanwhile, because the others held those rows and write them once it has
     left. Restarted on its file, it answers for what it stored before, and one gathered query holds every row. One
     killed with -9 leaves within 5 s, and the rows published right after are kept by the other two."""
-    switches = [f"el{k}" for k in range(12)]
+    # Enough switches that each of three historians owns some whatever its process id (rendezvous hashing over
+    # host-pid names): with 12, one of three owned none in about 1 run in 40 (3 (2/3)^12), and the hung one's rows
+    # were then none (seen once in ten runs); with 48, about 1 in 10^8.
+    switches = [f"el{k}" for k in range(48)]
     dbs = [tmp_path / f"h{k}.sqlite" for k in range(3)]
     with live_bus(tmp_path) as (services, endpoint, session, _):
         watch = ServiceWatch(session, "historian")
