@@ -51,6 +51,7 @@ RUNS = (
     Run("reduced", title="Reduced rail models against the plant (speed-up, validation, training)"),
     Run("plant", title="High-fidelity plant (real-time factor)"),
     Run("diagnosis", ("--seed", "11"), per_model=True, title="Diagnosis per throw (quality, latency, the paper's DE)"),
+    Run("profile", per_model=True, title="Where one throw's diagnosis spends its time (per phase, per hypothesis)"),
     Run("fleet", ("--seed", "1"), per_model=True, title="A fleet of switches unlike the model, with anomalies"),
     Run("coverage", per_model=True, title="Coverage of the uncertainty on held-out switches"),
     Run("aging", title="Switches as they age (several faults, standing conditions, growth, repairs)",
