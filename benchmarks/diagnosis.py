@@ -41,7 +41,7 @@ from railswitch.schemas import RAIL_MODELS, Diagnosis
 from railswitch.services.adapters.recordings import load_recording
 from railswitch.models.diagnosis.switch_diagnoser import COMMISSIONING_THROWS
 from railswitch.services.adapters.compiled import compiled_plant
-from railswitch.services.core.fleet_diagnoser import diagnose_messages, throw_input
+from railswitch.services.core.fleet_diagnoser import diagnose_messages
 from railswitch.services.wiring import Diagnoser
 from railswitch.services.core.throw_cutter import CutThrow
 from railswitch.services.core.switch_messages import SimulatedThrows
@@ -199,7 +199,7 @@ def paper_de(timed: Timed, kept: list, verbose: bool) -> dict:
             verdicts = []
             for throw in throws:
                 start = time.perf_counter()
-                outcome = twin.diagnose(throw_input(throw))
+                outcome = twin.diagnose(throw)
                 results[name]["seconds"].append(time.perf_counter() - start)
                 verdicts.append(outcome.verdict)
             results[name]["correct"] += outcome.named() == mode

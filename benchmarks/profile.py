@@ -47,8 +47,7 @@ from railswitch.services.wiring import Diagnoser
 
 # phase -> (owner, attribute) pairs: a module's global (where the caller looks it up) or a class's method
 PHASES = {
-    "cutting": [(throw_cutter.ThrowCutter, "feed"), (fleet_diagnoser, "throw_input"),
-                (switch_diagnoser, "measurement"), (ThrowEstimator, "prepare")],
+    "cutting": [(throw_cutter.ThrowCutter, "feed"), (switch_diagnoser, "measurement"), (ThrowEstimator, "prepare")],
     "model_io": [(ThrowEstimator, name) for name in ("all_outputs", "residuals", "linearise", "costs", "simulate")],
     "linear_algebra": [*((least_squares, name) for name in ("_normal_equations", "_promised", "_damped", "_proposal",
                                                             "_broyden")),

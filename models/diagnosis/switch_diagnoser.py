@@ -75,8 +75,8 @@ from railswitch.models.diagnosis.isolation import (
 )
 from railswitch.models.plant.population import COPPER_PER_K, credible_range, resistance_at, spread
 from railswitch.models.reduced.hybrid import NUISANCES
-from railswitch.models.plant.reference import DIRECTIONS, Reference
-from railswitch.models.plant.signals import MotorSignals
+from railswitch.models.plant.reference import DIRECTIONS
+from railswitch.models.plant.signals import MotorSignals, ThrowInput
 from railswitch.schemas.faults import FAULT_PARAMETERS, MODE_PARAMETERS
 from railswitch.schemas.plant import PLANT_PARAMETERS
 
@@ -359,19 +359,6 @@ class Baseline:
         baseline.accepted = {mode: {k: float(v) for k, v in values.items()}
                              for mode, values in data.get("accepted", {}).items()}
         return baseline
-
-
-@dataclass(frozen=True)
-class ThrowInput:
-    """One throw as the diagnoser receives it: samples relative to the start event."""
-
-    index: int
-    direction: str
-    reference: Reference
-    t_s: np.ndarray  # first sample at the start event (t = 0)
-    signals: MotorSignals
-    duration_s: float | None  # start to end event; None when no end event came
-    missing_samples: int = 0
 
 
 def start_angle(t_s: np.ndarray, signals: MotorSignals, direction: str, drive: DriveParams) -> float:

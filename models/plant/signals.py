@@ -1,4 +1,5 @@
-"""The measured signals of a point machine: one value type from the plant or the bus to the estimator.
+"""The measured signals of a point machine, and one throw of them: the value types from the plant or the bus to the
+estimator.
 
 The motor current is always measured. Many installed monitoring units log nothing else, so angle
 and angular velocity may be absent (None): the estimator then fits the current alone.
@@ -8,6 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from railswitch.models.plant.reference import Reference
 
 SIGNAL_NAMES = ("current_a", "angle_rad", "velocity_rad_s")
 
@@ -54,3 +57,19 @@ class MotorSignals:
         if len(names) != 1:
             raise ValueError(f"cannot join signals logged differently: {sorted(names)}")
         return cls(**{name: np.concatenate([getattr(p, name) for p in parts]) for name in names.pop()})
+
+
+@dataclass(frozen=True)
+class ThrowInput:
+    """One throw as the diagnosis takes it: samples relative to the start event, the reference the drive followed,
+    and how long the throw took. The throw cutter's throws are these (services/core/throw_cutter.py CutThrow adds the
+    switch, the events and the simulator's truth); the estimator fits the samples after the start
+    (models/diagnosis/switch_diagnoser.py measurement)."""
+
+    index: int
+    direction: str
+    reference: Reference
+    t_s: np.ndarray  # first sample at the start event (t = 0)
+    signals: MotorSignals
+    duration_s: float | None  # start to end event; None when no end event came
+    missing_samples: int = 0  # sequence numbers skipped inside the throw

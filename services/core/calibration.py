@@ -55,7 +55,7 @@ from railswitch.models.diagnosis.switch_diagnoser import (
     population,
 )
 from railswitch.schemas.faults import FAULT_PARAMETERS, MODE_PARAMETERS
-from railswitch.services.core.fleet_diagnoser import Diagnoser, throw_input
+from railswitch.services.core.fleet_diagnoser import Diagnoser
 from railswitch.services.core.switch_messages import SimulatedThrows
 from railswitch.services.ports import ModelSource
 
@@ -91,7 +91,7 @@ Progress = Callable[[str], None]
 def simulated_inputs(sim: SwitchSimulation, throws: int, switch_id: str = "calibration") -> list[ThrowInput]:
     """`throws` throws of a fresh simulated switch as the diagnoser receives them (through messages and the cutter)."""
     source = SimulatedThrows(switch_id, sim)
-    return [throw_input(source.next()) for _ in range(throws)]
+    return [source.next() for _ in range(throws)]
 
 
 def bearing_port(diagnoser: Diagnoser, plant: Plant) -> dict:
@@ -181,7 +181,7 @@ def commissioned(estimator, prior, plant: Plant, seed: int, noise: float) -> tup
     for _ in range(4 * switch.baseline.needed):
         if switch.baseline.complete:
             break
-        switch.diagnose(throw_input(source.next()))
+        switch.diagnose(source.next())
     return switch, source
 
 
@@ -199,7 +199,7 @@ def estimate_errors(diagnoser: Diagnoser, plant: Plant, weight: float, gains: di
         source.sim.set_own(changed_weather(source.sim.own, np.random.default_rng(case.seed)))
         source.sim.set_faults(case.faults)
         seeing = []
-        for throw in (throw_input(source.next()) for _ in range(FAULTY_THROWS)):
+        for throw in (source.next() for _ in range(FAULTY_THROWS)):
             outcome = switch.diagnose(throw)
             if outcome.verdict is not None and observable(case.mode, throw.direction):
                 seeing.append(Tracked.of(outcome.verdict, case.mode))
@@ -251,7 +251,7 @@ def healthy_check(new_switch: Callable[[str], SwitchDiagnoser], plant: Plant, sw
         for throw in range(throws):
             if throw == throws // 2:
                 source.sim.set_own(changed_weather(source.sim.own, np.random.default_rng(seed)))
-            alarms += switch.diagnose(throw_input(source.next())).decision != "nominal"
+            alarms += switch.diagnose(source.next()).decision != "nominal"
         uncommissioned += not switch.baseline.complete
         if progress:
             progress(f"held-out healthy switch {k + 1} of {switches}")

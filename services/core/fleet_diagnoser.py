@@ -17,14 +17,12 @@ import numpy as np
 from railswitch.models.health.alarms import AlarmBook, Change, Condition
 from railswitch.models.diagnosis.estimation import MODEL_RATE_HZ, WITHOUT, ThrowEstimator
 from railswitch.models.reduced.hybrid import BearingPort, Compiler, ReducedParams, ReducedSwitch, port_pairs
-from railswitch.models.plant.reference import Reference
 from railswitch.models.plant.simulation import SwitchSimulation
 from railswitch.models.diagnosis.switch_diagnoser import (
     ErrorModel,
     Outcome,
     Population,
     SwitchDiagnoser,
-    ThrowInput,
     ThrowVerdict,
     population,
 )
@@ -193,14 +191,15 @@ class Diagnoser:
         self._saved(switch_id)
         return True
 
-    def diagnose(self, throw: CutThrow) -> DiagnosedThrow:
-        """The Diagnosis of one throw, with the alarm changes it made; latency_ms is this call's wall time. A switch in
+    def diagnose(self, throw: CutThrow, waited_s: float = 0.0) -> DiagnosedThrow:
+        """The Diagnosis of one throw, with the alarm changes it made; latency_ms is how long the throw `waited_s`
+        before this call (the live diagnoser's: since its end arrived) plus the call's own wall time. A switch in
         maintenance is diagnosed aside: its throw is tagged, raises no alarm and teaches nothing."""
-        start = time.perf_counter()
+        start = time.perf_counter() - waited_s
         switch_id = throw.switch_id
         switch = self.switch(switch_id)
         maintenance = switch_id in self.maintenance
-        outcome = (switch.diagnose_aside if maintenance else switch.diagnose)(throw_input(throw))
+        outcome = (switch.diagnose_aside if maintenance else switch.diagnose)(throw)
         if outcome.standing is not None:
             log.warning("%s %s", switch_id, outcome.standing)
         end_ns = throw_end_ns(throw)
@@ -318,14 +317,6 @@ def throw_end_ns(throw: CutThrow) -> int:
 
 def _last_time(throw: CutThrow) -> float:
     return float(throw.t_s[-1]) if len(throw.t_s) else 0.0
-
-
-def throw_input(throw: CutThrow) -> ThrowInput:
-    """What the diagnosis needs from a cut throw."""
-    start, end = throw.start, throw.end
-    reference = Reference(np.asarray(start.reference_t_s, dtype=float), np.asarray(start.reference_velocity_rad_s, dtype=float))
-    return ThrowInput(start.throw_index, start.direction, reference, throw.t_s, throw.signals,
-                      None if end is None else (end.t_ns - start.t_ns) * 1e-9, throw.missing_samples)
 
 
 def diagnose_simulation(diagnoser: Diagnoser, switch_id: str, sim: SwitchSimulation, throws: int) -> list[DiagnosedThrow]:

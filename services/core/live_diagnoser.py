@@ -143,9 +143,8 @@ class LiveDiagnoser:
     def _diagnose(self, throw: CutThrow, arrived_s: float) -> None:
         if not self._new(throw):
             return
-        diagnosed = self._diagnosed(throw)
-        latency_ms = (self.clock() - arrived_s) * 1e3  # from the throw's end arriving to publication
-        diagnosis = diagnosed.diagnosis.model_copy(update={"latency_ms": latency_ms})
+        diagnosed = self._diagnosed(throw, waited_s=self.clock() - arrived_s)  # latency from the end's arrival
+        diagnosis = diagnosed.diagnosis
         self._put(key_expr(throw.switch_id, "diagnosis"), diagnosis)
         if diagnosed.health is not None:
             self._put(key_expr(throw.switch_id, "health"), diagnosed.health)
@@ -154,7 +153,7 @@ class LiveDiagnoser:
         self._publish_state(throw.switch_id, diagnosis.throw_index, diagnosis.t_end_ns)
         self.counts["diagnosed"] += 1
         log.info("%s throw %d %s: %s (%.0f ms)%s", throw.switch_id, diagnosis.throw_index, diagnosis.direction,
-                 diagnosis.decision, latency_ms, f" - {diagnosis.reason}" if diagnosis.reason else "")
+                 diagnosis.decision, diagnosis.latency_ms, f" - {diagnosis.reason}" if diagnosis.reason else "")
 
     def _new(self, throw: CutThrow) -> bool:
         """Whether the switch's state has not seen this throw yet (a publisher's cache replays the throws it kept to a
@@ -211,11 +210,11 @@ class LiveDiagnoser:
         finally:
             self._recovering = False
 
-    def _diagnosed(self, throw: CutThrow) -> DiagnosedThrow:
+    def _diagnosed(self, throw: CutThrow, waited_s: float) -> DiagnosedThrow:
         """The diagnosis, or an unknown one saying why it failed: one throw must not stop a fleet's diagnoser. A
         switch that could not even be resumed drops the state it was resumed from, so its next throw starts afresh."""
         try:
-            return self.diagnoser.diagnose(throw)
+            return self.diagnoser.diagnose(throw, waited_s)
         except Exception as error:  # noqa: BLE001 - whatever the estimator or a foreign state raises
             name = type(error).__name__
             self.failures[name] += 1

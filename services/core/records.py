@@ -28,8 +28,7 @@ def throw_of_record(record: ThrowRecord, truth: FaultTruth | None = None) -> Cut
     signals = MotorSignals(**{name: np.asarray(values, dtype=float) for name in SIGNAL_NAMES
                               if (values := getattr(record, name)) is not None})
     t_s = np.asarray(record.t_offset_ns, dtype=np.int64) * 1e-9  # as the cutter's (t_ns - t_start_ns) * 1e-9
-    return CutThrow(switch_id=record.switch_id, start=start, end=end, t_s=t_s, signals=signals, missing_samples=0,
-                    truth=truth)
+    return CutThrow.of(start, end, t_s, signals, truth=truth)
 
 
 def every_throw(messages: Iterable[Message]) -> Iterator[CutThrow]:

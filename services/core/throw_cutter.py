@@ -6,21 +6,30 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from railswitch.models.plant.signals import SIGNAL_NAMES, MotorSignals
+from railswitch.models.plant.reference import Reference
+from railswitch.models.plant.signals import SIGNAL_NAMES, MotorSignals, ThrowInput
 from railswitch.schemas import FaultTruth, Message, MotorSample, ThrowEvent
 
 
-@dataclass(frozen=True)
-class CutThrow:
-    """The samples of one throw, time relative to its start event."""
+@dataclass(frozen=True, kw_only=True)
+class CutThrow(ThrowInput):
+    """One throw as the cutter cut it: what the diagnosis takes (ThrowInput: samples relative to the start event,
+    the reference, how long it took), with the switch, the events it was cut between and the simulator's truth."""
 
     switch_id: str
     start: ThrowEvent
     end: ThrowEvent | None  # None: the stream ended before the throw did
-    t_s: np.ndarray
-    signals: MotorSignals
-    missing_samples: int  # seq numbers skipped inside the throw
-    truth: FaultTruth | None
+    truth: FaultTruth | None = None
+
+    @classmethod
+    def of(cls, start: ThrowEvent, end: ThrowEvent | None, t_s: np.ndarray, signals: MotorSignals,
+           missing_samples: int = 0, truth: FaultTruth | None = None) -> CutThrow:
+        """The throw between `start` and `end` (None: unfinished), its index, direction and reference from `start`."""
+        reference = Reference(np.asarray(start.reference_t_s, dtype=float),
+                              np.asarray(start.reference_velocity_rad_s, dtype=float))
+        return cls(index=start.throw_index, direction=start.direction, reference=reference, t_s=t_s, signals=signals,
+                   duration_s=None if end is None else (end.t_ns - start.t_ns) * 1e-9, missing_samples=missing_samples,
+                   switch_id=start.switch_id, start=start, end=end, truth=truth)
 
     @property
     def complete(self) -> bool:
@@ -103,10 +112,8 @@ def _cut(current: _OpenThrow, end: ThrowEvent | None) -> CutThrow:
     seqs = np.array([s.seq for s in samples], dtype=np.int64)
     missing = int(np.sum(np.diff(seqs) - 1)) if len(seqs) > 1 else 0
     t0 = current.start.t_ns
-    return CutThrow(
-        switch_id=current.start.switch_id, start=current.start, end=end,
-        t_s=np.array([(s.t_ns - t0) * 1e-9 for s in samples]),
-        signals=_signals(samples), missing_samples=missing, truth=current.truth)
+    return CutThrow.of(current.start, end, np.array([(s.t_ns - t0) * 1e-9 for s in samples]), _signals(samples),
+                       missing, current.truth)
 
 
 def _signals(samples: list[MotorSample]) -> MotorSignals:

@@ -20,11 +20,13 @@ class Published:
 
     def __init__(self):
         self.diagnosed: list[tuple[str, int]] = []
+        self.diagnoses = []
         self.published = 0
 
     def put(self, key: str, message) -> None:
         if key.endswith("/diagnosis"):
             self.diagnosed.append((message.switch_id, message.throw_index))
+            self.diagnoses.append(message)
 
 
 @pytest.fixture()
@@ -150,3 +152,15 @@ def test_throws_the_recorder_no_longer_keeps_are_reported_missed(tmp_path, recor
     stream(again, *records[6:7])
     assert published.diagnosed == [("sw1", 4), ("sw1", 5), ("sw1", 6)]
     assert again.counts["recovered"] == 2 and again.counts["missed"] == 3
+
+
+def test_a_live_diagnosis_s_latency_runs_from_its_throw_s_end_arriving(tmp_path, records):
+    """latency_ms of a live diagnosis: how long the throw's end waited to be diagnosed (the diagnoser's clock) and the
+    diagnosis itself, set in one place (fleet_diagnoser.Diagnoser.diagnose)."""
+    store = BaselineStore("poly", tmp_path)
+    published = Published()
+    live = LiveDiagnoser(Diagnoser("poly", on_state=store.save, stored_state=store.load), published,
+                         known=store.known, clock=lambda: 100.0)
+    live.handle(Received(key_expr("sw1", "record"), encode(records[0]), 97.5))  # arrived 2.5 s ago
+    latency = published.diagnoses[0].latency_ms
+    assert 2500.0 < latency < 2500.0 + 60_000.0

@@ -109,8 +109,8 @@ def throw(switch_id: str = "sw1", index: int = 3, t_ns: int = 10**12) -> CutThro
     start = ThrowEvent(switch_id=switch_id, throw_index=index, direction="left_to_right", phase="start", t_ns=t_ns,
                        reference_t_s=[0.0, 7.0], reference_velocity_rad_s=[0.0, 0.0])
     zeros = np.zeros(3)
-    return CutThrow(switch_id, start, start.model_copy(update={"phase": "end", "t_ns": t_ns + 7 * 10**9}),
-                    np.arange(3.0), MotorSignals(zeros, zeros, zeros), 0, None)
+    return CutThrow.of(start, start.model_copy(update={"phase": "end", "t_ns": t_ns + 7 * 10**9}), np.arange(3.0),
+                       MotorSignals(zeros, zeros, zeros))
 
 
 def diagnosis_of(cut: CutThrow) -> Diagnosis:
