@@ -3,7 +3,7 @@
 from dataclasses import dataclass
 from typing import Literal, get_args
 
-from railswitch.schemas.ranges import check_in_range
+from railswitch.schemas.ranges import Ranged
 
 FaultMode = Literal["left_bolt", "right_bolt", "missing_bearing", "obstacle", "drive_friction"]
 Decision = Literal["nominal", FaultMode, "unknown"]
@@ -15,30 +15,25 @@ RAIL_MODELS: tuple[RailModel, ...] = get_args(RailModel)
 DECISIONS: tuple[Decision, ...] = get_args(Decision)
 
 
-@dataclass(frozen=True)
-class FaultParameter:
-    """One injectable fault parameter: the mode it belongs to, SI unit, nominal value and range."""
+@dataclass(frozen=True, kw_only=True)
+class FaultParameter(Ranged):
+    """One injectable fault parameter: its SI unit, nominal value and range, and the mode it belongs to."""
 
-    name: str
     mode: FaultMode
-    unit: str
-    nominal: float
-    low: float
-    high: float
 
 
 FAULT_PARAMETERS: dict[str, FaultParameter] = {
     p.name: p
     for p in (
-        FaultParameter("left_bolt_offset", "left_bolt", "m", 0.0, -0.02, 0.20),
-        FaultParameter("right_bolt_offset", "right_bolt", "m", 0.0, -0.02, 0.20),
-        FaultParameter("bearing_friction", "missing_bearing", "N·s/m", 0.0, 0.0, 10_000.0),
-        FaultParameter("obstacle_friction", "obstacle", "N·s/m", 0.0, 0.0, 300_000.0),
+        FaultParameter("left_bolt_offset", "m", 0.0, -0.02, 0.20, mode="left_bolt"),
+        FaultParameter("right_bolt_offset", "m", 0.0, -0.02, 0.20, mode="right_bolt"),
+        FaultParameter("bearing_friction", "N·s/m", 0.0, 0.0, 10_000.0, mode="missing_bearing"),
+        FaultParameter("obstacle_friction", "N·s/m", 0.0, 0.0, 300_000.0, mode="obstacle"),
         # Nominal position is only a placeholder: it matters only when obstacle_friction > 0.
-        FaultParameter("obstacle_position", "obstacle", "m", 1.10, 1.02, 1.18),
+        FaultParameter("obstacle_position", "m", 1.10, 1.02, 1.18, mode="obstacle"),
         # Coulomb friction added inside the point machine (gearbox and motor wear), at the motor shaft;
         # the range reaches 2.5 times the motor's own nominal 0.12 N·m.
-        FaultParameter("drive_friction_nm", "drive_friction", "N·m", 0.0, 0.0, 0.30),
+        FaultParameter("drive_friction_nm", "N·m", 0.0, 0.0, 0.30, mode="drive_friction"),
     )
 }
 
@@ -61,5 +56,4 @@ def check_fault_value(name: str, value: float | str) -> float:
 
     Strings are parsed, so a command line can pass the text after NAME= unchanged.
     """
-    p = FAULT_PARAMETERS[check_fault_name(name)]
-    return check_in_range(name, value, p.low, p.high, p.unit)
+    return FAULT_PARAMETERS[check_fault_name(name)].check(value)

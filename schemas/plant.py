@@ -6,16 +6,13 @@ plant's own defaults; a test holds the two to account.
 """
 from dataclasses import dataclass
 
-from railswitch.schemas.ranges import check_in_range
+from railswitch.schemas.ranges import Ranged
 
 
 @dataclass(frozen=True)
-class PlantParameter:
-    name: str
-    unit: str
-    nominal: float
-    low: float
-    high: float
+class PlantParameter(Ranged):
+    """One settable plant parameter: its SI unit, nominal value and range, and what it means."""
+
     meaning: str
 
 
@@ -49,8 +46,7 @@ def check_plant_value(name: str, value: float | str) -> float:
     """Return value as a float if name is a plant parameter and the value finite and in range; else ValueError."""
     if name not in PLANT_PARAMETERS:
         raise ValueError(f"unknown plant parameter {name!r}; accepted: {', '.join(PLANT_PARAMETERS)}")
-    p = PLANT_PARAMETERS[name]
-    return check_in_range(name, value, p.low, p.high, p.unit)
+    return PLANT_PARAMETERS[name].check(value)
 
 
 def check_plant_values(values: dict[str, float]) -> dict[str, float]:

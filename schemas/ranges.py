@@ -1,6 +1,7 @@
 """A value given for a named quantity, checked against its accepted range: one check for fault and plant parameters
 alike, so a command line, a scenario file and a message all say the same of a bad value."""
 import math
+from dataclasses import dataclass
 
 
 def shortest(x: float) -> str:
@@ -23,3 +24,18 @@ def check_in_range(name: str, value: float | str, low: float, high: float, unit:
     if not low <= x <= high:
         raise ValueError(f"{name}={shortest(x)} is outside the accepted range {shortest(low)} … {shortest(high)} {unit}")
     return x
+
+
+@dataclass(frozen=True)
+class Ranged:
+    """A named quantity's SI unit, nominal value and accepted range (a fault's or a plant's parameter)."""
+
+    name: str
+    unit: str
+    nominal: float
+    low: float
+    high: float
+
+    def check(self, value: float | str) -> float:
+        """`value` as a float within the range, or ValueError naming it and the range (check_in_range)."""
+        return check_in_range(self.name, value, self.low, self.high, self.unit)

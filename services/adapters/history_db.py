@@ -20,14 +20,8 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from railswitch.schemas import CHANNEL_MODELS, HISTORY_KINDS, MessageError, decode
-from railswitch.services.adapters.history_store import (
-    COLUMNS,
-    KIND_CHECK,
-    PRUNE_SQL,
-    HistoryDbError,
-    HistoryRow,
-    HistoryStore,
-)
+from railswitch.services.adapters.history_store import (COLUMNS, KIND_CHECK, PRUNE_SQL, HistoryDbError, HistoryRow,
+                                                        HistoryStore)
 
 log = logging.getLogger("railswitch.historian")
 

@@ -23,15 +23,8 @@ from collections.abc import Sequence
 import psycopg
 from psycopg.conninfo import conninfo_to_dict, make_conninfo
 
-from railswitch.services.adapters.history_store import (
-    COLUMNS,
-    KIND_CHECK,
-    PRUNE_SQL,
-    HistoryDbError,
-    HistoryRow,
-    HistoryStore,
-    masked,
-)
+from railswitch.services.adapters.history_store import (COLUMNS, KIND_CHECK, PRUNE_SQL, HistoryDbError, HistoryRow,
+                                                        HistoryStore, masked)
 
 # 2: alarm changes are kept too (the kinds' check names them). A database of version 1 is read as it is and migrated
 # by the first historian that opens it, under the schema lock.

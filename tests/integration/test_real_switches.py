@@ -70,21 +70,19 @@ def test_gearbox_wear_growing_after_commissioning_is_drive_friction_not_a_rail_f
     assert seen.params["drive_friction_nm"] == pytest.approx(np.mean(truths), rel=0.15)
 
 
-def test_a_left_bolt_on_a_switch_with_dry_chairs_is_found_within_ten_percent(diagnoser, plant):
-    dry = {"rail.chair_friction_coefficient": 0.04}
-    changes = {COMMISSIONING: ({"left_bolt_offset": 0.06}, None)}
-    diagnoses = run_switch(diagnoser, plant, "dry", own=dry, changes=changes, throws=COMMISSIONING + 3)
-    assert diagnoses[-1].decision == "left_bolt"
-    assert diagnoses[-1].estimate.params["left_bolt_offset"] == pytest.approx(0.06, rel=0.10)
-
-
-def test_missing_bearings_on_a_commissioned_switch_with_dry_chairs_are_found_within_ten_percent(diagnoser, plant):
-    """Once commissioned, the switch's own chairs are known: the bearing friction is no longer confused with them."""
-    dry = {"rail.chair_friction_coefficient": 0.03}
-    changes = {COMMISSIONING: ({"bearing_friction": 5000.0}, None)}
-    diagnoses = run_switch(diagnoser, plant, "bearing", own=dry, changes=changes, throws=COMMISSIONING + 2)
-    assert diagnoses[-1].decision == "missing_bearing"
-    assert diagnoses[-1].estimate.params["bearing_friction"] == pytest.approx(5000.0, rel=0.10)
+@pytest.mark.parametrize(("mode", "parameter", "value", "chairs", "after"), [
+    ("left_bolt", "left_bolt_offset", 0.06, 0.04, 3),
+    ("missing_bearing", "bearing_friction", 5000.0, 0.03, 2),
+], ids=("left_bolt", "missing_bearing"))
+def test_a_fault_on_a_commissioned_switch_with_dry_chairs_is_found_within_ten_percent(diagnoser, plant, mode, parameter,
+                                                                                     value, chairs, after):
+    """Once commissioned, the switch's own chairs are known: a missing bearing's friction is no longer confused with
+    theirs, and a bolt is read as well as on a switch like the model."""
+    changes = {COMMISSIONING: ({parameter: value}, None)}
+    diagnoses = run_switch(diagnoser, plant, mode, own={"rail.chair_friction_coefficient": chairs}, changes=changes,
+                           throws=COMMISSIONING + after)
+    assert diagnoses[-1].decision == mode
+    assert diagnoses[-1].estimate.params[parameter] == pytest.approx(value, rel=0.10)
 
 
 def test_a_right_to_left_throw_does_not_pretend_to_see_the_left_bolt(diagnoser, plant):

@@ -9,30 +9,10 @@ from hypothesis import given
 from hypothesis import strategies as st
 from pydantic import BaseModel, ValidationError
 
-from railswitch.schemas import (
-    CHANNEL_MODELS,
-    CONTRACT_VERSION,
-    DECISIONS,
-    FAULT_PARAMETERS,
-    MODE_PARAMETERS,
-    Commissioning,
-    Diagnosis,
-    FaultEstimate,
-    FaultCommand,
-    FaultTruth,
-    Hypothesis,
-    Message,
-    MessageError,
-    MotorSample,
-    ThrowEvent,
-    check_fault_value,
-    decode,
-    decode_counted,
-    encode,
-    json_schema,
-    key_expr,
-    parse_key_expr,
-)
+from railswitch.schemas import (CHANNEL_MODELS, CONTRACT_VERSION, DECISIONS, FAULT_PARAMETERS, MODE_PARAMETERS,
+                                Commissioning, Diagnosis, FaultCommand, FaultEstimate, FaultTruth, Hypothesis,
+                                Message, MessageError, MotorSample, ThrowEvent, check_fault_value, decode,
+                                decode_counted, encode, json_schema, key_expr, parse_key_expr)
 
 NAN, INF = float("nan"), float("inf")
 
