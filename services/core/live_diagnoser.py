@@ -143,7 +143,7 @@ class LiveDiagnoser:
     def _diagnose(self, throw: CutThrow, arrived_s: float) -> None:
         if not self._new(throw):
             return
-        diagnosed = self._diagnosed(throw, waited_s=self.clock() - arrived_s)  # latency from the end's arrival
+        diagnosed = self._diagnosed(throw, arrived_s)
         diagnosis = diagnosed.diagnosis
         self._put(key_expr(throw.switch_id, "diagnosis"), diagnosis)
         if diagnosed.health is not None:
@@ -210,11 +210,12 @@ class LiveDiagnoser:
         finally:
             self._recovering = False
 
-    def _diagnosed(self, throw: CutThrow, waited_s: float) -> DiagnosedThrow:
+    def _diagnosed(self, throw: CutThrow, arrived_s: float) -> DiagnosedThrow:
         """The diagnosis, or an unknown one saying why it failed: one throw must not stop a fleet's diagnoser. A
-        switch that could not even be resumed drops the state it was resumed from, so its next throw starts afresh."""
+        switch that could not even be resumed drops the state it was resumed from, so its next throw starts afresh.
+        Either one's latency runs from the throw's end arriving (`arrived_s`, on the diagnoser's clock)."""
         try:
-            return self.diagnoser.diagnose(throw, waited_s)
+            return self.diagnoser.diagnose(throw, waited_s=self.clock() - arrived_s)
         except Exception as error:  # noqa: BLE001 - whatever the estimator or a foreign state raises
             name = type(error).__name__
             self.failures[name] += 1
@@ -224,7 +225,9 @@ class LiveDiagnoser:
                               throw.start.throw_index, name)
             if throw.switch_id not in self.diagnoser.switches:
                 self.states.forget(throw.switch_id)
-            return DiagnosedThrow(throw, failed_diagnosis(self.diagnoser.model, throw, f"{name}: {error}"), None)
+            latency_ms = (self.clock() - arrived_s) * 1e3
+            return DiagnosedThrow(throw, failed_diagnosis(self.diagnoser.model, throw, f"{name}: {error}", latency_ms),
+                                  None)
 
     def _put(self, key: str, message: Message) -> None:
         if self.publishers is not None:
@@ -347,9 +350,9 @@ class LiveDiagnoser:
         return {**counts, "switches": owned, "held": len(self.held), "members": len(self.ownership.members)}
 
 
-def failed_diagnosis(model: str, throw: CutThrow, why: str) -> Diagnosis:
-    """An unknown Diagnosis for a throw whose diagnosis raised."""
+def failed_diagnosis(model: str, throw: CutThrow, why: str, latency_ms: float) -> Diagnosis:
+    """An unknown Diagnosis for a throw whose diagnosis raised, `latency_ms` after its end arrived."""
     end_ns = throw.end.t_ns if throw.end is not None else throw.start.t_ns
     return Diagnosis(switch_id=throw.switch_id, throw_index=throw.start.throw_index, direction=throw.start.direction,
                      t_start_ns=throw.start.t_ns, t_end_ns=end_ns, model=model, decision="unknown",
-                     reason=f"diagnosis failed: {why}"[:500], latency_ms=0.0)
+                     reason=f"diagnosis failed: {why}"[:500], latency_ms=latency_ms)

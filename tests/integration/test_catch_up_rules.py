@@ -164,3 +164,20 @@ def test_a_live_diagnosis_s_latency_runs_from_its_throw_s_end_arriving(tmp_path,
     live.handle(Received(key_expr("sw1", "record"), encode(records[0]), 97.5))  # arrived 2.5 s ago
     latency = published.diagnoses[0].latency_ms
     assert 2500.0 < latency < 2500.0 + 60_000.0
+
+
+class Failing(Diagnoser):
+    """A real diagnoser whose diagnosis raises, as a broken estimator or a foreign state would."""
+
+    def diagnose(self, throw, waited_s=0.0):
+        raise FloatingPointError("overflow in the rollout")
+
+
+def test_a_failed_diagnosis_is_published_unknown_with_its_latency_from_the_end_arriving(tmp_path, records):
+    published = Published()
+    live = LiveDiagnoser(Failing("poly"), published, clock=lambda: 100.0)
+    live.handle(Received(key_expr("sw1", "record"), encode(records[0]), 97.5))  # arrived 2.5 s ago
+    diagnosis = published.diagnoses[0]
+    assert diagnosis.decision == "unknown" and "FloatingPointError" in diagnosis.reason
+    assert diagnosis.latency_ms == pytest.approx(2500.0)
+    assert live.counts["failed"] == 1
