@@ -2,8 +2,6 @@
 
 import json
 import re
-from collections.abc import Iterator
-from functools import cache
 from typing import Annotated, Generic, Literal, NamedTuple, Self, TypeVar
 
 from pydantic import (
@@ -16,7 +14,6 @@ from pydantic import (
     field_validator,
     model_validator,
 )
-from pydantic_core import from_json
 
 from railswitch.schemas.plant import PLANT_PARAMETERS, check_plant_values
 from railswitch.schemas.faults import (
@@ -562,8 +559,9 @@ def encode(msg: BaseModel) -> bytes:
 
 
 class Counted(NamedTuple, Generic[M]):
-    """A decoded payload: the message, what of the payload this version does not know, and the message as this
-    version encodes it (for a store that keeps it: encoding it again would only cost time)."""
+    """A decoded payload: the message, what of the payload this version does not know, and the message's bytes for a
+    store that keeps it: the payload as it came when it holds nothing unknown (encoding it again would only cost
+    time), else the message as this version encodes it (what it understood)."""
 
     message: M
     unknown: list[str]
@@ -575,45 +573,35 @@ def decode_counted(model_cls: type[M], data: bytes) -> Counted[M]:
     "Changing the contract"): every unknown field, nested ones by their dotted path (`estimate.since`, list
     items unnumbered: `hypotheses.note`), and `contract=N` when the payload was written to a newer contract.
 
-    A payload that reads back exactly as this version writes it (every payload of a publisher of this version)
-    holds nothing unknown. Any other is parsed a second time, by the JSON parser pydantic validated it with (it
-    takes all the validator took), to see what validation dropped: models keep only what they know."""
-    message = decode(model_cls, data)
-    encoded = encode(message)
-    unknown = [] if encoded == data else sorted(set(_unknown_fields(message, from_json(data))))
+    The payload is validated first with unknown fields refused at every depth: one that passes (every payload of a
+    publisher of this version) holds nothing unknown, and is neither validated nor encoded again. Any other is
+    validated as decode does (unknown fields ignored; a wrong one is refused for its own reason), and the unknown
+    fields the first validation refused are its names to count."""
+    utf8(data)
+    try:
+        message = model_cls.model_validate_json(data, extra="forbid")
+        unknown, encoded = [], data
+    except ValidationError as refused:
+        message = decode(model_cls, data)
+        unknown = sorted({".".join(str(step) for step in error["loc"] if not isinstance(step, int))
+                          for error in refused.errors(include_url=False) if error["type"] == "extra_forbidden"})
+        encoded = encode(message)
     if isinstance(message, Message) and message.contract > CONTRACT_VERSION:
         unknown.append(f"contract={message.contract}")
     return Counted(message, unknown, encoded)
 
 
-@cache
-def _field_names(model_cls: type[BaseModel]) -> frozenset[str]:
-    return frozenset(model_cls.model_fields)
-
-
-def _unknown_fields(message: BaseModel, raw: object, prefix: str = "") -> Iterator[str]:
-    """Paths of the keys in raw (the payload as parsed JSON) that message's model ignored, at every depth of
-    nested models (alone or in lists)."""
-    if not isinstance(raw, dict):
-        return
-    known = _field_names(type(message))
-    for name, raw_value in raw.items():
-        if name not in known:
-            yield prefix + name
-        elif isinstance(raw_value, (dict, list)):  # only these can hold a nested message
-            value = getattr(message, name)
-            items, raw_items = (value, raw_value) if isinstance(value, list) else ([value], [raw_value])
-            if items and isinstance(items[0], BaseModel):  # one type per list: a record's floats are not walked
-                for item, raw_item in zip(items, raw_items):
-                    yield from _unknown_fields(item, raw_item, f"{prefix}{name}.")
-
-
-def decode(model_cls: type[M], data: bytes) -> M:
-    """Parse and validate a payload; every failure is a MessageError with a short reason."""
+def utf8(data: bytes) -> None:
+    """MessageError unless data is UTF-8 (JSON's encoding, and what a store keeps as text)."""
     try:
         data.decode("utf-8")
     except UnicodeDecodeError:
         raise MessageError("not utf-8") from None
+
+
+def decode(model_cls: type[M], data: bytes) -> M:
+    """Parse and validate a payload; every failure is a MessageError with a short reason."""
+    utf8(data)
     try:
         return model_cls.model_validate_json(data)
     except ValidationError as e:
