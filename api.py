@@ -78,4 +78,4 @@ def read_history(db: str | os.PathLike[str], switch_id: str, kind: str = "diagno
         raise ValueError(f"kind {kind!r} is not one of {', '.join(HISTORY_KINDS)}")
     with open_history(db, create=False) as store:
         payloads, _ = store.latest(switch_id, kind, since_ns, until_ns, limit)
-    return [decode(CHANNEL_MODELS[kind], payload.encode()) for payload in payloads]
+    return [decode(CHANNEL_MODELS[kind], payload) for payload in payloads]

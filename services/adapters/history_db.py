@@ -70,6 +70,7 @@ class HistoryDb(HistoryStore):
     (check=False, one per thread) join a file already checked."""
 
     table = "history"
+    payload_bytes = "CAST(payload AS BLOB)"
 
     def __init__(self, path: str | os.PathLike[str], *, check: bool = True, create: bool = True):
         self.path = Path(path)

@@ -67,6 +67,7 @@ class PostgresHistory(HistoryStore):
     (check=False, one per thread) join a database already checked."""
 
     table = TABLE
+    payload_bytes = "convert_to(payload, 'UTF8')"  # bytea, whose binary format is the bytes themselves
 
     def __init__(self, url: str, *, check: bool = True, create: bool = True):
         self.name = masked(url)
@@ -148,7 +149,8 @@ class PostgresHistory(HistoryStore):
 
     def _read(self, sql: str, parameters: tuple = ()) -> list[tuple]:
         try:
-            return self._connection().execute(sql.replace("?", "%s"), parameters).fetchall()
+            with self._connection().cursor(binary=True) as cursor:  # values as the server holds them, unescaped
+                return cursor.execute(sql.replace("?", "%s"), parameters).fetchall()
         except psycopg.Error as error:
             raise self._error("read", error) from None
 

@@ -17,8 +17,8 @@ from railswitch.services.ports import HistoryDbError, HistoryRow
 COLUMNS = "switch_id, kind, throw_index, t_ns, payload"
 KIND_CHECK = "CHECK (kind IN ({}))".format(", ".join(f"'{k}'" for k in HISTORY_KINDS))
 URL_SCHEMES = ("postgresql://", "postgres://")
-# The reads of both stores, `?` for a parameter; {table} is the store's table.
-LATEST_SQL = ("SELECT payload FROM {table} WHERE switch_id = ? AND kind = ? AND t_ns >= ? AND t_ns < ? "
+# The reads of both stores, `?` for a parameter; {table} is the store's table, {payload} its payload as bytes.
+LATEST_SQL = ("SELECT {payload} FROM {table} WHERE switch_id = ? AND kind = ? AND t_ns >= ? AND t_ns < ? "
               "ORDER BY t_ns DESC LIMIT ?")
 THROW_INDICES_SQL = "SELECT throw_index FROM {table} WHERE switch_id = ? AND kind = ?"
 HOLDS_SQL = "SELECT 1 FROM {table} WHERE switch_id = ? LIMIT 1"
@@ -32,6 +32,9 @@ class HistoryStore:
     Subclasses say how a batch is written and run the shared reads through `_read`."""
 
     table: str
+    # The payload column read as UTF-8 bytes: a reply splices them as they are, where text would be decoded into
+    # strings and encoded again (a switch's latest 1000 diagnoses are 4 MB).
+    payload_bytes: str
     name: str  # the file, or the URL with its password masked: for messages and a reply's `historian`
 
     def write(self, rows: Sequence[HistoryRow]) -> int:
@@ -49,10 +52,10 @@ class HistoryStore:
         raise NotImplementedError
 
     def latest(self, switch_id: str, kind: str, since_ns: int | None, until_ns: int | None,
-               limit: int) -> tuple[list[str], bool]:
+               limit: int) -> tuple[list[bytes], bool]:
         """The payloads of the latest `limit` rows of one switch and kind with since_ns <= t_ns < until_ns,
         oldest first, and whether older rows in the window were left out."""
-        rows = self._read(LATEST_SQL.format(table=self.table),
+        rows = self._read(LATEST_SQL.format(table=self.table, payload=self.payload_bytes),
                           (switch_id, kind, since_ns or 0, MAX_TIME_NS if until_ns is None else until_ns, limit + 1))
         return [payload for (payload,) in reversed(rows[:limit])], len(rows) > limit
 

@@ -223,14 +223,14 @@ def switch_in_key(key: str) -> str | None:
     return check_switch_id(parts[1])
 
 
-def reply_payload(switch_id: str, historian: str, diagnoses: list[str], health: list[str], truncated: bool,
-                  alarms: list[str] = ()) -> bytes:
-    """A HistoryReply's JSON spliced from stored payloads: each was encoded from a validated message when it
-    was written, so decoding and encoding it again would only cost time (benchmarks/historian.py)."""
+def reply_payload(switch_id: str, historian: str, diagnoses: list[bytes], health: list[bytes], truncated: bool,
+                  alarms: list[bytes] = ()) -> bytes:
+    """A HistoryReply's JSON spliced from stored payloads: each was a validated message's JSON when it was
+    written, so decoding and encoding it again would only cost time (benchmarks/historian.py)."""
     head = json.dumps({"contract": CONTRACT_VERSION, "switch_id": switch_id, "historian": historian,
                        "truncated": truncated}, separators=(",", ":"))
-    return (f'{head[:-1]},"diagnoses":[{",".join(diagnoses)}],"health":[{",".join(health)}],'
-            f'"alarms":[{",".join(alarms)}]}}').encode()
+    return b"".join((head[:-1].encode(), b',"diagnoses":[', b",".join(diagnoses), b'],"health":[', b",".join(health),
+                     b'],"alarms":[', b",".join(alarms), b"]}"))
 
 
 class HistoryAnswers:

@@ -58,10 +58,10 @@ def test_the_file_keeps_every_row_across_reopening_and_a_message_delivered_twice
         assert db.write([stored("sw1", "diagnosis", 4), stored("sw1", "diagnosis", 5)]) == 1  # 4 again: kept once
     with HistoryDb(path) as db:
         payloads, truncated = db.latest("sw1", "diagnosis", None, None, limit=10)
-        assert [decode(Diagnosis, p.encode()).throw_index for p in payloads] == [0, 1, 2, 3, 4, 5]
+        assert [decode(Diagnosis, p).throw_index for p in payloads] == [0, 1, 2, 3, 4, 5]
         assert not truncated and db.count() == 11
         window, _ = db.latest("sw1", "health", throw_end(1), throw_end(3), limit=10)  # since <= t < until
-        assert [decode(SwitchHealth, p.encode()).throw_index for p in window] == [1, 2]
+        assert [decode(SwitchHealth, p).throw_index for p in window] == [1, 2]
     with sqlite3.connect(path) as direct:
         assert direct.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
         assert direct.execute("SELECT version FROM schema_version").fetchone()[0] == 2
@@ -78,7 +78,7 @@ def test_rows_older_than_keep_days_by_their_own_time_are_pruned(tmp_path):
         now_ns = T0_NS + 3 * DAY_NS  # just after the last throw
         assert historian.prune(now_ns, keep_days=1.0) == 2 * 2 * 2 * throws_per_day
         kept, _ = db.latest("sw1", "diagnosis", None, None, limit=MAX_LIMIT)
-        assert min(decode(Diagnosis, p.encode()).t_end_ns for p in kept) >= now_ns - DAY_NS
+        assert min(decode(Diagnosis, p).t_end_ns for p in kept) >= now_ns - DAY_NS
         assert historian.counters()["pruned"] == 8 * throws_per_day
 
 
@@ -162,7 +162,7 @@ def test_an_elastic_historian_writes_its_own_switches_and_those_of_one_that_left
 
 def stored_rows(db: HistoryDb) -> list[tuple[str, int]]:
     return [(switch_id, throw) for switch_id in db.switches()
-            for throw in (decode(Diagnosis, p.encode()).throw_index
+            for throw in (decode(Diagnosis, p).throw_index
                           for p in db.latest(switch_id, "diagnosis", None, None, MAX_LIMIT)[0])]
 
 
@@ -367,7 +367,7 @@ def test_a_version_1_file_is_read_as_it_is_and_migrated_by_a_historian_to_keep_a
     direct.close()
     with HistoryDb(path) as db:  # a historian migrates it, keeping its rows
         assert db.write([stored_alarm("sw1", 1), stored_alarm("sw1", 2)]) == 2 and db.count() == 3
-        assert [decode(Alarm, p.encode()).change for p in db.latest("sw1", "alarm", None, None, 10)[0]] == [
+        assert [decode(Alarm, p).change for p in db.latest("sw1", "alarm", None, None, 10)[0]] == [
             "raised", "acknowledged"]
     with sqlite3.connect(path) as direct:
         assert direct.execute("SELECT version FROM schema_version").fetchone()[0] == 2

@@ -8,8 +8,8 @@ from tests.history_bus import diagnosis, health
 
 def test_a_reply_spliced_from_stored_payloads_is_the_history_reply_of_those_messages():
     diagnoses, healths = [diagnosis("sw1", k) for k in range(3)], [health("sw1", k) for k in range(2)]
-    payload = reply_payload("sw1", "host-1", [encode(d).decode() for d in diagnoses],
-                            [encode(h).decode() for h in healths], truncated=True)
+    payload = reply_payload("sw1", "host-1", [encode(d) for d in diagnoses],
+                            [encode(h) for h in healths], truncated=True)
     assert decode(HistoryReply, payload) == HistoryReply(switch_id="sw1", historian="host-1", truncated=True,
                                                          diagnoses=diagnoses, health=healths)
 
