@@ -10,8 +10,9 @@ query's time. `railswitch_schema_version` says which layout the database has. Ou
 other tables alone. A batch is copied into a temporary table and inserted from there in key order with ON CONFLICT
 DO NOTHING: one round trip for the rows, and two historians writing the same rows take their locks in the same
 order, so neither waits for the other in a deadlock. The batch is copied in COPY's binary format: the server takes
-each payload as it comes, where the text format has it scan every character for escapes. The temporary table keeps rows whole too: a value it
-compressed would go into the history compressed, and compressing every diagnosis took most of a write's time.
+each payload as it comes, where the text format has it scan every character for escapes. The temporary table keeps
+rows whole too: a value it compressed would go into the history compressed, and compressing every diagnosis took
+most of a write's time.
 
 A lost connection raises HistoryDbError and is opened again by the next call, so the historian keeps a batch it
 could not write and writes it once the server is back.

@@ -33,7 +33,7 @@ class HistoryStore:
 
     table: str
     # The payload column read as UTF-8 bytes: a reply splices them as they are, where text would be decoded into
-    # strings and encoded again (a switch's latest 1000 diagnoses are 4 MB).
+    # strings and encoded again (a reply may hold a thousand diagnoses).
     payload_bytes: str
     name: str  # the file, or the URL with its password masked: for messages and a reply's `historian`
 
