@@ -263,21 +263,27 @@ class HistoryAnswers:
                      matches: Callable[[str], bool] = lambda switch_id: True) -> Answer:
         """The answer for one switch, or (switch_id None) for every switch held that `matches`."""
         if switch_id is None:
-            switches = [s for s in self.db.switches() if matches(s)]
-        elif self.db.holds(switch_id):
-            switches = [switch_id]
-        elif self.is_mine(switch_id):
+            self.answered += 1
+            return Answer([(history_key(s), self._reply(s, self._found(s, query)))
+                           for s in self.db.switches() if matches(s)])
+        found = self._found(switch_id, query)  # a switch with rows in the window holds rows: no query to ask that
+        if any(payloads for payloads, _ in found.values()) or self.db.holds(switch_id):
+            self.answered += 1
+            return Answer([(history_key(switch_id), self._reply(switch_id, found))])
+        if self.is_mine(switch_id):
             return self._refuse("unknown switch", f"unknown switch {switch_id}: no history stored",
                                 history_key(switch_id))
-        else:
-            switches = []
         self.answered += 1
-        return Answer([(history_key(s), self.reply(s, query)) for s in switches])
+        return Answer([])
 
-    def reply(self, switch_id: str, query: HistoryQuery) -> bytes:
+    def _found(self, switch_id: str, query: HistoryQuery) -> dict[str, tuple[list[bytes], bool]]:
+        """Per kind, the payloads the query asks for and whether older ones in its window were left out."""
         found = {kind: ([], False) for kind in HISTORY_KINDS}
         for kind in query.kinds():
             found[kind] = self.db.latest(switch_id, kind, query.since_ns, query.until_ns, query.limit)
+        return found
+
+    def _reply(self, switch_id: str, found: dict[str, tuple[list[bytes], bool]]) -> bytes:
         return reply_payload(switch_id, self.historian, found["diagnosis"][0], found["health"][0],
                              any(truncated for _, truncated in found.values()), found["alarm"][0])
 
