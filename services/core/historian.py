@@ -263,18 +263,18 @@ class HistoryAnswers:
                      matches: Callable[[str], bool] = lambda switch_id: True) -> Answer:
         """The answer for one switch, or (switch_id None) for every switch held that `matches`."""
         if switch_id is None:
-            self.answered += 1
-            return Answer([(history_key(s), self._reply(s, self._found(s, query)))
-                           for s in self.db.switches() if matches(s)])
-        found = self._found(switch_id, query)  # a switch with rows in the window holds rows: no query to ask that
-        if any(payloads for payloads, _ in found.values()) or self.db.holds(switch_id):
-            self.answered += 1
-            return Answer([(history_key(switch_id), self._reply(switch_id, found))])
-        if self.is_mine(switch_id):
-            return self._refuse("unknown switch", f"unknown switch {switch_id}: no history stored",
-                                history_key(switch_id))
+            switches = {s: self._found(s, query) for s in self.db.switches() if matches(s)}
+        else:
+            found = self._found(switch_id, query)  # a switch with rows in the window holds rows: no query to ask that
+            if any(payloads for payloads, _ in found.values()) or self.db.holds(switch_id):
+                switches = {switch_id: found}
+            elif self.is_mine(switch_id):
+                return self._refuse("unknown switch", f"unknown switch {switch_id}: no history stored",
+                                    history_key(switch_id))
+            else:
+                switches = {}
         self.answered += 1
-        return Answer([])
+        return Answer([(history_key(s), self._reply(s, found)) for s, found in switches.items()])
 
     def _found(self, switch_id: str, query: HistoryQuery) -> dict[str, tuple[list[bytes], bool]]:
         """Per kind, the payloads the query asks for and whether older ones in its window were left out."""
