@@ -4,7 +4,8 @@
 JSON line in docs/results/<name>.json with the command, the commit and the day it ran (committed with the project, so
 a fresh clone can rerun some and keep the rest), and writes docs/results.md: one table per benchmark, a column per
 representation where it runs per representation, each under the commit its figures come from. `--only NAME` reruns
-those and reuses the others' kept JSON; `--from DIR` reruns nothing. Every figure in the file comes from one of these
+those and reuses the others' kept JSON; `--from DIR` reruns nothing; `--db URL` hands a PostgreSQL server to the
+benchmarks that measure one beside SQLite (historian, soak). Every figure in the file comes from one of these
 JSON objects; nothing is typed in.
 """
 from __future__ import annotations
@@ -37,14 +38,20 @@ class Run:
     per_model: bool = False
     title: str = ""
     whole_machine: bool = False  # it runs worker processes of its own: alone, on every core
+    name: str = ""  # what --only and the kept JSON call it, where one benchmark runs twice (default: benchmark)
+    database: bool = False  # it takes --db URL: given the report's --db where one is given
+
+    @property
+    def key(self) -> str:
+        return self.name or self.benchmark
 
     def names(self) -> list[str]:
-        return [f"{self.benchmark}-{model}" for model in RAIL_MODELS] if self.per_model else [self.benchmark]
+        return [f"{self.key}-{model}" for model in RAIL_MODELS] if self.per_model else [self.key]
 
-    def command(self, name: str) -> list[str]:
-        model = name.removeprefix(f"{self.benchmark}-") if self.per_model else None
+    def command(self, name: str, db: str | None = None) -> list[str]:
+        model = name.removeprefix(f"{self.key}-") if self.per_model else None
         return [sys.executable, "-m", f"benchmarks.{self.benchmark}", "--json", *self.args,
-                *(("--model", model) if model else ())]
+                *(("--model", model) if model else ()), *(("--db", db) if db and self.database else ())]
 
 
 RUNS = (
@@ -58,9 +65,16 @@ RUNS = (
         whole_machine=True),
     Run("prognosis", per_model=True, title="Prognosis (throws to a limit)", whole_machine=True),
     Run("memory", title="Diagnoser memory per switch"),
-    Run("historian", title="History store (SQLite)", whole_machine=True),
+    Run("historian", title="History store (SQLite; with --db, PostgreSQL beside it)", whole_machine=True,
+        database=True),
+    Run("bus", ("--records",), name="bus-capacity",
+        title="Bus: switches per core at 100 throws a day, and a paced fleet (records, elastic diagnosers)",
+        whole_machine=True),
     Run("bus", ("--records", "--outage", "600"), title="Bus: a fleet through an outage of every diagnoser",
         whole_machine=True),
+    Run("soak", ("--records", "--minutes", "10"),
+        title="Soak: 200 switches as records at 10x for 10 minutes (elastic diagnosers, two historians)",
+        whole_machine=True, database=True),
 )
 
 
@@ -89,9 +103,9 @@ def cell(value: object) -> str:
 def columns(run: Run, results: dict[str, dict]) -> dict[str, dict[str, object]]:
     """Column name -> flattened figures: one per representation (its own run, or its key in one run's object)."""
     if run.per_model:
-        return {name.removeprefix(f"{run.benchmark}-"): flatten(results[name]) for name in run.names()
+        return {name.removeprefix(f"{run.key}-"): flatten(results[name]) for name in run.names()
                 if name in results}
-    result = results.get(run.benchmark)
+    result = results.get(run.key)
     if result is None:
         return {}
     models = [model for model in RAIL_MODELS if isinstance(result.get(model), dict)]
@@ -172,9 +186,9 @@ class Cores:
             self.changed.notify_all()
 
 
-def run_benchmark(run: Run, name: str, cores: Cores, kept: Path) -> None:
+def run_benchmark(run: Run, name: str, cores: Cores, kept: Path, db: str | None = None) -> None:
     """Run one benchmark on the cores it needs and keep its command and last JSON line in kept/<name>.json."""
-    command = run.command(name)
+    command = run.command(name, db)
     taken = cores.take(run.whole_machine)
     try:
         print("running", " ".join(command[1:]), "on cores", taken, file=sys.stderr, flush=True)
@@ -195,8 +209,11 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--from", dest="source", type=Path, default=None, metavar="DIR",
                    help="render from the <name>.json files kept in DIR; run nothing")
-    p.add_argument("--only", action="append", default=[], choices=[run.benchmark for run in RUNS],
+    p.add_argument("--only", action="append", default=[], choices=[run.key for run in RUNS],
                    help="run these benchmarks; reuse the others' kept JSON")
+    p.add_argument("--db", default=None, metavar="URL",
+                   help="a PostgreSQL server for the benchmarks that also measure one (historian, soak): "
+                        "postgresql://user@host:port/db; without it they measure SQLite only")
     p.add_argument("--kept", type=Path, default=ROOT / "docs" / "results", help="where each run's JSON is kept")
     p.add_argument("--out", type=Path, default=ROOT / "docs" / "results.md")
     p.add_argument("--jobs", type=int, default=1, help="benchmarks run at once, each on a core of its own (those that "
@@ -205,10 +222,10 @@ def main() -> int:
     kept = args.source or args.kept
     kept.mkdir(parents=True, exist_ok=True)
     if args.source is None:
-        chosen = [(run, name) for run in RUNS if not args.only or run.benchmark in args.only for name in run.names()]
+        chosen = [(run, name) for run in RUNS if not args.only or run.key in args.only for name in run.names()]
         cores = Cores()
         with ThreadPoolExecutor(max(1, min(args.jobs, len(cores.all)))) as pool:
-            failed = [error for error in pool.map(lambda job: attempt(*job, cores, kept), chosen) if error]
+            failed = [error for error in pool.map(lambda job: attempt(*job, cores, kept, args.db), chosen) if error]
         for error in failed:
             print(error, file=sys.stderr)
     results, sources, ran = kept_runs(kept)
@@ -233,10 +250,10 @@ def kept_runs(kept: Path) -> tuple[dict[str, dict], dict[str, str], dict[str, st
     return results, sources, ran
 
 
-def attempt(run: Run, name: str, cores: Cores, kept: Path) -> str | None:
+def attempt(run: Run, name: str, cores: Cores, kept: Path, db: str | None = None) -> str | None:
     """None, or why the run failed (the others go on; the file keeps that run's earlier JSON, if any)."""
     try:
-        run_benchmark(run, name, cores, kept)
+        run_benchmark(run, name, cores, kept, db)
     except RuntimeError as error:
         return str(error)
     return None

@@ -44,6 +44,17 @@ def test_the_results_file_tabulates_each_representation_of_a_kept_run_and_says_w
     assert text.count("Not run for this file.") == len(RUNS) - 1
 
 
+def test_a_benchmark_run_twice_keeps_a_table_each_and_only_database_runs_take_the_database():
+    runs = [run for run in RUNS if run.benchmark == "bus"]
+    assert len({run.key for run in runs}) == len(runs) > 1  # each its own kept JSON and --only name
+    results = {run.key: {"figure": k} for k, run in enumerate(runs)}
+    assert [columns(run, results) for run in runs] == [{"value": {"figure": k}} for k in range(len(runs))]
+    url = "postgresql://u@127.0.0.1:5/db"
+    takes = {run.key: run.command(run.names()[0], url)[-2:] == ["--db", url] for run in RUNS}
+    assert {key for key, took in takes.items() if took} == {"historian", "soak"}
+    assert all("--db" not in run.command(run.names()[0]) for run in RUNS)  # without a URL, none
+
+
 def test_the_results_file_is_what_its_kept_runs_render():
     """docs/results.md is rewritten from docs/results/*.json, never edited: rendered again from them, it is the same
     but for when and at which commit it was written; each kept run names the commit it ran at."""
