@@ -54,9 +54,12 @@ def test_a_service_sent_large_payloads_by_a_shared_memory_peer_still_stops_on_it
         ours.declare_subscriber("railswitch/@service/recorder/*/status",
                                 lambda sample: received.append(json.loads(sample.payload.to_bytes())["received"]))
         big = json.dumps({"switch_id": "sw1", "padding": "x" * 20_000}).encode()
-        for _ in range(20):
-            foreign.put("railswitch/sw1/record", big)
-        wait_for(lambda: received and received[-1] >= 20, 30, "the recorder to take the large payloads")
+        for _ in range(20):  # Zenoh drops a put its queues cannot take at once unless told to block
+            foreign.put("railswitch/sw1/record", big, congestion_control=zenoh.CongestionControl.BLOCK)
+        try:
+            wait_for(lambda: received and received[-1] >= 20, 30, "the recorder to take the large payloads")
+        except TimeoutError as error:
+            raise AssertionError(f"{error}; it reported {received[-3:]} received") from error
         code = services.stop(recorder)  # SIGINT, and SIGKILL at the end of the grace period
     finally:
         foreign.close()
@@ -67,11 +70,14 @@ def test_a_service_sent_large_payloads_by_a_shared_memory_peer_still_stops_on_it
 
 # Started in a service process (through PYTHONPATH) before its command runs: once the service has installed its
 # Python handler, a "native library" sets SIGINT's C-level handler to one that never tells Python (SIG_IGN here),
-# as Zenoh's shared memory did, then its thread ends.
+# as Zenoh's shared memory did, then its thread ends. Its thread blocks the stop signals, as a library's thread that
+# the service starts inherits them blocked: the kernel hands a process's signal to any thread that does not block it,
+# and this thread, alive for a moment after it prints, would drop the test's SIGINT under SIG_IGN.
 TAKES_SIGINT = '''
 import ctypes, signal, threading, time
 
 def take_sigint():
+    signal.pthread_sigmask(signal.SIG_BLOCK, (signal.SIGINT, signal.SIGTERM))
     deadline = time.monotonic() + 60
     while signal.getsignal(signal.SIGINT) is signal.default_int_handler and time.monotonic() < deadline:
         time.sleep(0.05)
