@@ -505,11 +505,13 @@ class Tracked:
     fit_std: tuple[float, ...]
 
     @classmethod
-    def of(cls, verdict: ThrowVerdict, mode: str) -> Tracked:
+    def of(cls, verdict: ThrowVerdict, mode: str, short_m: float = 0.0) -> Tracked:
+        """`short_m`: how far short (rod travel) the throw started, when `mode` is its own bolt. Its reading may be
+        off by up to that much (SwitchDiagnoser._held_short), so that is two of its standard deviations."""
         report = verdict.reported[mode]
         names = MODE_PARAMETERS[mode]
         return cls(verdict.index, tuple(float(report.params[n]) for n in names),
-                   tuple(float(report.fit_std[n]) for n in names))
+                   tuple(float(np.hypot(report.fit_std[n], short_m / 2.0)) for n in names))
 
 
 @dataclass(frozen=True)
@@ -887,6 +889,11 @@ class SwitchDiagnoser:
         fitted = self.estimator.simulate(prepared, explained.values)
         end_rail = float(fitted["rail_position_m"][-1])
         judged = self._judged(direction, start_rail, end_rail)
+        held = self._held_short(direction, start_rail, estimates["nominal"], judged)
+        if held is not None:  # not told from the bolt as it is: the blades end where that bolt leaves them
+            judged = frozenset()
+            fitted = self.estimator.simulate(prepared, {**explained.values, **held})
+            end_rail = float(fitted["rail_position_m"][-1])
         for name, seen in found.items():
             if name in judged:
                 self.evidence[name] = [seen, *self.evidence.get(name, [])][:EVIDENCE_THROWS]
@@ -917,7 +924,8 @@ class SwitchDiagnoser:
                 self.candidates[direction] = [*self.candidates[direction], record][-self.baseline.needed:]
         for mode, fault in self.faults.items():
             if mode in judged and mode in reported:
-                fault.track.append(Tracked.of(verdict, mode))
+                own = mode == DRIVING_BOLT[direction]
+                fault.track.append(Tracked.of(verdict, mode, self.shortfall(start_rail, direction) if own else 0.0))
         standing = self._standing(direction, provisional, bool(added or repaired), suspected)
         if provisional and self.baseline.complete:  # from now on its estimates depart from its own baseline
             self.health.reset()
@@ -1102,6 +1110,25 @@ class SwitchDiagnoser:
                 DRIVING_BOLT[OTHER_DIRECTION[direction]] in self.faults):
             return modes & {DRIVING_BOLT[direction]}
         return modes
+
+    def _held_short(self, direction: str, start_rail_m: float, nominal: Estimate,
+                    judged: frozenset[str]) -> dict[str, float] | None:
+        """A present bolt's values, when a throw that judges that bolt alone (it started short after a loose bolt of
+        the other direction: _judged) reads it no further from them than how far short it started (in rod travel);
+        else None. Resting short, the blades are where the reduced model cannot hold them (its chairs have no static
+        friction): anywhere from there to closed when this throw's bolt meets the adjuster, so its reading may be
+        off by up to the whole shortfall (SHORT_SHARE is how far it usually is), and a change that small is not told
+        from none: the throw neither repairs the bolt nor resizes it. Both bolts loose, every throw starts short: a
+        right bolt of 47 mm beside a left one of 38 mm read 1.5 mm (poly) and 15 mm (causal, 49 mm short) on such a
+        throw and was repaired at once, and the left bolt, read on the next throw with the blades taken to have
+        started closed, crept from 38 to 60 mm (benchmarks.aging)."""
+        own = DRIVING_BOLT[direction]
+        fault = self.faults.get(own)
+        if fault is None or judged != {own}:
+            return None
+        name = MODE_PARAMETERS[own][0]
+        change = abs(nominal.values[name] - fault.values[name])
+        return {name: fault.values[name]} if change <= self.shortfall(start_rail_m, direction) else None
 
     def _repairs(self, direction: str, estimates: dict[str, Estimate], reported: dict[str, Reported],
                  gains: dict[str, float], shown: str, judged: frozenset[str], short_m: float) -> list[str]:
