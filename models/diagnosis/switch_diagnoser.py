@@ -889,7 +889,8 @@ class SwitchDiagnoser:
         fitted = self.estimator.simulate(prepared, explained.values)
         end_rail = float(fitted["rail_position_m"][-1])
         judged = self._judged(direction, start_rail, end_rail)
-        held = self._held_short(direction, start_rail, estimates["nominal"], judged)
+        short = self.shortfall(start_rail, direction)
+        held = self._held_short(direction, short, estimates["nominal"], judged)
         if held is not None:  # not told from the bolt as it is: the blades end where that bolt leaves them
             judged = frozenset()
             fitted = self.estimator.simulate(prepared, {**explained.values, **held})
@@ -904,8 +905,7 @@ class SwitchDiagnoser:
         verdict = ThrowVerdict(throw.index, direction, shown, found, estimates, reported, end_rail, fitted, provisional,
                                base)
         # A throw that repairs a fault adds none: its other modes were tested against the switch with that fault.
-        repaired = self._repairs(direction, estimates, reported, gains, shown, judged,
-                                 self.shortfall(start_rail, direction))
+        repaired = self._repairs(direction, estimates, reported, gains, shown, judged, short)
         added = None if repaired else self._additions(verdict, detected)
         self.latest[direction] = verdict.kept(slopes=not self.lean)
         self.rail_m = verdict.end_rail_m
@@ -925,7 +925,7 @@ class SwitchDiagnoser:
         for mode, fault in self.faults.items():
             if mode in judged and mode in reported:
                 own = mode == DRIVING_BOLT[direction]
-                fault.track.append(Tracked.of(verdict, mode, self.shortfall(start_rail, direction) if own else 0.0))
+                fault.track.append(Tracked.of(verdict, mode, short if own else 0.0))
         standing = self._standing(direction, provisional, bool(added or repaired), suspected)
         if provisional and self.baseline.complete:  # from now on its estimates depart from its own baseline
             self.health.reset()
@@ -1111,11 +1111,11 @@ class SwitchDiagnoser:
             return modes & {DRIVING_BOLT[direction]}
         return modes
 
-    def _held_short(self, direction: str, start_rail_m: float, nominal: Estimate,
+    def _held_short(self, direction: str, short_m: float, nominal: Estimate,
                     judged: frozenset[str]) -> dict[str, float] | None:
         """A present bolt's values, when a throw that judges that bolt alone (it started short after a loose bolt of
-        the other direction: _judged) reads it no further from them than how far short it started (in rod travel);
-        else None. Resting short, the blades are where the reduced model cannot hold them (its chairs have no static
+        the other direction: _judged) reads it no further from them than how far short it started (`short_m`, in rod
+        travel: shortfall); else None. Resting short, the blades are where the reduced model cannot hold them (its chairs have no static
         friction): anywhere from there to closed when this throw's bolt meets the adjuster, so its reading may be
         off by up to the whole shortfall (SHORT_SHARE is how far it usually is), and a change that small is not told
         from none: the throw neither repairs the bolt nor resizes it. Both bolts loose, every throw starts short: a
@@ -1128,7 +1128,7 @@ class SwitchDiagnoser:
             return None
         name = MODE_PARAMETERS[own][0]
         change = abs(nominal.values[name] - fault.values[name])
-        return {name: fault.values[name]} if change <= self.shortfall(start_rail_m, direction) else None
+        return {name: fault.values[name]} if change <= short_m else None
 
     def _repairs(self, direction: str, estimates: dict[str, Estimate], reported: dict[str, Reported],
                  gains: dict[str, float], shown: str, judged: frozenset[str], short_m: float) -> list[str]:
